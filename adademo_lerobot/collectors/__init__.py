@@ -1,0 +1,9 @@
+from adademo_lerobot.collectors.base import (
+    CollectionResult,
+    CollectorConfig,
+    Demonstration,
+    ExpertCollector,
+    make_collector,
+)
+
+__all__ = ["CollectionResult", "CollectorConfig", "Demonstration", "ExpertCollector", "make_collector"]

@@ -1,0 +1,265 @@
+"""MetaWorld v3 as a task suite: state observations by default, exact initial-state restore.
+
+A MetaWorld initial state is the env's object/goal vector `_last_rand_vec`. It is captured right after a
+seeded reset and restored with `_last_rand_vec = v; _freeze_rand_vec = True; reset()`, which reproduces the
+observation exactly (../shared/NOTES.md). The goal is made observable (`_partially_observable = False`): the
+goal is part of the initial state the policy must condition on, and the scripted experts read it too.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+from functools import cached_property
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.suites.base import (
+    SuiteConfig,
+    check_obs_type,
+    check_task_names,
+    onehot,
+    split_task_list,
+)
+
+MT10 = [
+    "reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3",
+    "drawer-close-v3", "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3",
+]  # fmt: skip
+# Raw 39-D observation: hand xyz, gripper opening, two objects (pos + quat), the previous frame, goal xyz.
+RAW_OBS_DIM = 39
+PROPRIO_DIM = 4  # hand xyz + gripper opening: the robot's own state
+ACTION_DIM = 4
+FPS = 80
+PRISTINE_MODEL_FIELDS = ("body_pos", "body_quat", "site_pos", "site_quat")  # MetaWorld: timestep 0.0025 s x frame_skip 5
+
+
+@SuiteConfig.register_subclass("metaworld")
+@dataclass
+class MetaWorldSuiteConfig(SuiteConfig):
+    camera: str = "corner2"
+
+
+def choose_gl_backend() -> None:
+    """EGL needs a GPU; without one OSMesa renders (apt-get install libosmesa6). An explicit MUJOCO_GL wins."""
+    if "MUJOCO_GL" not in os.environ:
+        backend = "egl" if os.path.exists("/dev/nvidia0") or os.path.exists("/dev/dri/renderD128") else "osmesa"
+        os.environ["MUJOCO_GL"] = backend
+        os.environ.setdefault("PYOPENGL_PLATFORM", backend)
+
+
+def all_task_names() -> list[str]:
+    from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+
+    return list(ALL_V3_ENVIRONMENTS)
+
+
+def expand_task_groups(tasks: list[str]) -> list[str]:
+    out: list[str] = []
+    for task in tasks:
+        if task.lower() == "mt10":
+            out.extend(MT10)
+        elif task.lower() == "mt50":
+            out.extend(all_task_names())
+        else:
+            out.append(task)
+    return out
+
+
+def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera: str = "corner2"):
+    """A bare MetaWorld env with the goal observable and no internal step limit (we truncate ourselves)."""
+    from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+
+    kwargs = dict(render_mode="rgb_array", camera_name=camera, width=image_size, height=image_size) if render else {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        env = ALL_V3_ENVIRONMENTS[task](**kwargs)
+    env._partially_observable = False
+    env.__dict__.pop("sawyer_observation_space", None)  # cached property depends on observability
+    env._set_task_called = True  # we set the layout ourselves instead of through metaworld Task objects
+    env.max_path_length = 10**9
+    # Tasks move bodies/sites of the *model* during reset (e.g. door-open moves the door), so a reset
+    # depends on the previous layout. Keep the pristine values to make every restore equal a fresh env's.
+    env._adademo_pristine_model = {name: getattr(env.model, name).copy() for name in PRISTINE_MODEL_FIELDS}
+    if render:
+        env.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
+        if camera == "corner2":
+            env.model.cam_pos[2] = [0.75, 0.075, 0.7]  # same corner2 placement as LeRobot's MetaWorld env
+    return env
+
+
+def sample_layout(raw_env, seed: int) -> np.ndarray:
+    """Let the env draw its own valid layout from `seed` (some tasks resample until objects do not overlap)."""
+    raw_env._freeze_rand_vec = False
+    raw_env.seeded_rand_vec = True
+    raw_env.seed(int(seed))
+    raw_env.reset()
+    raw_env._freeze_rand_vec = True
+    return np.array(raw_env._last_rand_vec, dtype=np.float64, copy=True)
+
+
+def restore_layout(raw_env, layout: np.ndarray) -> np.ndarray:
+    """Reset to exactly `layout`; returns the raw observation."""
+    layout = np.asarray(layout, dtype=np.float64)
+    if raw_env._random_reset_space is not None and layout.shape != raw_env._random_reset_space.low.shape:
+        raise AdaDemoError(
+            f"initial state has {layout.size} values but this MetaWorld task needs "
+            f"{raw_env._random_reset_space.low.size}; was it recorded for another task?"
+        )
+    # Clear model edits, solver warm-start and other history: a restore equals a fresh env's first reset.
+    for name, value in raw_env._adademo_pristine_model.items():
+        getattr(raw_env.model, name)[:] = value
+    mujoco.mj_resetData(raw_env.model, raw_env.data)
+    raw_env._last_rand_vec = layout.copy()
+    raw_env._freeze_rand_vec = True
+    raw_env._did_see_sim_exception = False
+    obs, _ = raw_env.reset()
+    return obs
+
+
+class MetaWorldTaskEnv(gym.Env):
+    """One MetaWorld task with LeRobot-style dict observations and exact initial-state resets.
+
+    Observations: `agent_pos` (hand xyz + gripper), `environment_state` (39-D state + task one-hot) and,
+    for `pixels_state`, `pixels` = {camera: HxWx3 uint8}. `info["is_success"]` reports success; with
+    `terminate_on_success` (evaluation) the episode ends at the first success, as in LeRobot's envs.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
+
+    def __init__(self, suite: MetaWorldSuite, task: str, terminate_on_success: bool = True):
+        super().__init__()
+        cfg = suite.config
+        self.task = task
+        self.task_description = suite.task_description(task)
+        self.terminate_on_success = terminate_on_success
+        self._max_episode_steps = cfg.max_episode_steps
+        self._onehot = suite.task_onehot(task)
+        self._pixels = cfg.obs_type == "pixels_state"
+        self._camera = cfg.camera
+        self._raw = make_raw_env(task, self._pixels, cfg.image_size, cfg.camera)
+        # Set per sub-env through VectorEnv.set_attr before a batched reset (gymnasium passes one options dict).
+        self.pending_initial_state: np.ndarray | None = None
+        self.initial_state: np.ndarray | None = None
+        self._steps = 0
+        self._succeeded = False
+        obs_spaces = {
+            "agent_pos": spaces.Box(-np.inf, np.inf, (PROPRIO_DIM,), np.float64),
+            "environment_state": spaces.Box(-np.inf, np.inf, (RAW_OBS_DIM + len(self._onehot),), np.float64),
+        }
+        if self._pixels:
+            shape = (cfg.image_size, cfg.image_size, 3)
+            obs_spaces["pixels"] = spaces.Dict({self._camera: spaces.Box(0, 255, shape, np.uint8)})
+        self.observation_space = spaces.Dict(obs_spaces)
+        self.action_space = spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
+
+    def _observation(self, raw: np.ndarray) -> dict:
+        obs = {
+            "agent_pos": raw[:PROPRIO_DIM].astype(np.float64),
+            "environment_state": np.concatenate([raw.astype(np.float64), self._onehot]),
+        }
+        if self._pixels:
+            image = self._raw.render()
+            if self._camera == "corner2":
+                image = np.flip(image, (0, 1))  # this camera renders upside down (as in LeRobot's env)
+            obs["pixels"] = {self._camera: np.ascontiguousarray(image)}
+        return obs
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        state = (options or {}).get("initial_state")
+        if state is None and self.pending_initial_state is not None:
+            state, self.pending_initial_state = self.pending_initial_state, None
+        if state is None:
+            layout_seed = seed if seed is not None else int(self.np_random.integers(2**62))
+            state = sample_layout(self._raw, layout_seed)
+        raw = restore_layout(self._raw, state)
+        self.initial_state = np.array(state, dtype=np.float64, copy=True)
+        self._steps = 0
+        self._succeeded = False
+        return self._observation(raw), {"is_success": False}
+
+    def step(self, action):
+        # float32 and clipped: exactly what is stored in the dataset, so stored actions replay exactly.
+        action = np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
+        raw, reward, _, _, raw_info = self._raw.step(action)
+        self._steps += 1
+        success = bool(raw_info.get("success", 0.0))
+        self._succeeded |= success
+        terminated = success and self.terminate_on_success
+        truncated = self._steps >= self._max_episode_steps and not terminated
+        info = {"is_success": success, "task": self.task}
+        if terminated or truncated:
+            info["final_info"] = {"is_success": success, "task": self.task}
+        return self._observation(raw), float(reward), terminated, truncated, info
+
+    def render(self):
+        return self._raw.render()
+
+    def close(self):
+        self._raw.close()
+
+
+class MetaWorldSuite:
+    """Any MetaWorld v3 task, plus the group names `mt10` and `mt50`."""
+
+    name = "metaworld"
+    fps = FPS
+    action_dim = ACTION_DIM
+    state_dim = PROPRIO_DIM
+
+    def __init__(self, config: SuiteConfig):
+        if not isinstance(config, MetaWorldSuiteConfig):
+            config = MetaWorldSuiteConfig(**{k: v for k, v in config.to_dict().items() if k != "type"})
+        check_obs_type(config.obs_type)
+        if config.max_episode_steps < 1:
+            raise AdaDemoError(f"--suite.max_episode_steps must be >= 1, got {config.max_episode_steps}")
+        if config.image_size < 16:
+            raise AdaDemoError(f"--suite.image_size must be >= 16 pixels, got {config.image_size}")
+        tasks = expand_task_groups(split_task_list(config.tasks))
+        check_task_names(tasks, all_task_names(), "metaworld")
+        self.config = config
+        self._tasks = tasks
+        self.config.tasks = ",".join(tasks)  # stored expanded, in one-hot order
+        if config.obs_type == "pixels_state":
+            choose_gl_backend()
+        self._samplers: dict[str, object] = {}
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(self._tasks)
+
+    @property
+    def env_state_dim(self) -> int:
+        return RAW_OBS_DIM + len(self._tasks)
+
+    def make_env(self, task: str, terminate_on_success: bool = True) -> MetaWorldTaskEnv:
+        self._check_task(task)
+        return MetaWorldTaskEnv(self, task, terminate_on_success)
+
+    def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
+        self._check_task(task)
+        if task not in self._samplers:
+            self._samplers[task] = make_raw_env(task)
+        return sample_layout(self._samplers[task], seed)
+
+    def task_onehot(self, task: str) -> np.ndarray:
+        return onehot(self._tasks, task)
+
+    def task_description(self, task: str) -> str:
+        return self._descriptions.get(task, task)
+
+    @cached_property
+    def _descriptions(self) -> dict[str, str]:
+        from lerobot.envs.metaworld import TASK_DESCRIPTIONS
+
+        return {f"{k}-v3" if not k.endswith("-v3") else k: v for k, v in TASK_DESCRIPTIONS.items()}
+
+    def _check_task(self, task: str) -> None:
+        if task not in self._tasks:
+            raise AdaDemoError(f"task {task!r} is not in this suite's task list {self._tasks}")

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# One entry point for a fresh machine:
+#   bash setup.sh quickstart   install, then run the quickstart recipe
+#   bash setup.sh test         install, then run the test suite (what CI runs)
+# The virtualenv lives outside the clone (reused by every clone on this machine); override with ADADEMO_VENV.
+set -euo pipefail
+cd "$(dirname "$0")"
+VENV="${ADADEMO_VENV:-$HOME/.venvs/adademo-lerobot}"
+PYTHON="${PYTHON:-python3.11}"
+command -v "$PYTHON" >/dev/null 2>&1 || PYTHON=python3
+
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "creating virtualenv $VENV (first install downloads ~9 GB: lerobot + torch, about 5 minutes)"
+  "$PYTHON" -m venv "$VENV"
+  "$VENV/bin/pip" install --quiet --upgrade pip
+fi
+"$VENV/bin/pip" install --quiet -e ".[test]" 2>&1 | grep -v -E "^(WARNING|  )" || true
+"$VENV/bin/python" -c "import adademo_lerobot, lerobot, metaworld, gymnasium_robotics" \
+  || { echo "error: the install into $VENV failed; see pip's output above"; exit 1; }
+
+# Two cores: keep torch from oversubscribing them beside env worker processes (see README, "Threads").
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-2}"
+
+case "${1:-}" in
+  test)
+    shift
+    exec "$VENV/bin/python" -m pytest -q "$@"
+    ;;
+  quickstart)
+    shift
+    exec "$VENV/bin/adademo-collect" \
+      --suite.tasks=reach-v3,push-v3,pick-place-v3,peg-insert-side-v3 --episodes_per_task=10 \
+      --dataset.repo_id=local/quickstart --dataset.root=outputs/quickstart/dataset --resume=true "$@"
+    ;;
+  *)
+    echo "usage: bash setup.sh test|quickstart [extra flags]" >&2
+    exit 2
+    ;;
+esac

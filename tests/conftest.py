@@ -1,0 +1,42 @@
+"""Shared fixtures: real MetaWorld simulation, real LeRobot datasets written by our own commands."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("OMP_NUM_THREADS", "2")
+BIN = Path(sys.executable).parent
+
+
+def run_cli(command: str, *args: str, check: bool = True, timeout: int = 900) -> subprocess.CompletedProcess:
+    """Run one of our console scripts as a user would."""
+    proc = subprocess.run([str(BIN / command), *args], capture_output=True, text=True, timeout=timeout)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"{command} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return proc
+
+
+@pytest.fixture(scope="session")
+def reach_push_dataset(tmp_path_factory) -> Path:
+    """The issue's example: 3 demos each of reach-v3 and push-v3, collected by `adademo-collect`."""
+    root = tmp_path_factory.mktemp("collect") / "demo"
+    run_cli(
+        "adademo-collect", "--suite.type=metaworld", "--suite.tasks=reach-v3,push-v3", "--episodes_per_task=3",
+        "--dataset.repo_id=local/demo", f"--dataset.root={root}", "--seed=0",
+    )
+    return root
+
+
+def file_digests(root: Path) -> dict[str, str]:
+    import hashlib
+
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
