@@ -1,0 +1,6 @@
+"""Task suites. Importing this package registers the built-in suite configs with draccus."""
+
+from adademo_lerobot.suites.base import SuiteConfig, TaskSuite, make_suite
+from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
+
+__all__ = ["MetaWorldSuiteConfig", "SuiteConfig", "TaskSuite", "make_suite"]

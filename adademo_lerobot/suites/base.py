@@ -50,6 +50,8 @@ class SuiteConfig(draccus.ChoiceRegistry, abc.ABC):
 
     @staticmethod
     def from_dict(data: dict[str, Any]) -> SuiteConfig:
+        import adademo_lerobot.suites  # noqa: F401  (registers the built-in suites)
+
         data = dict(data)
         kind = data.pop("type")
         try:

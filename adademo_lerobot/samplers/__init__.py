@@ -1,0 +1,17 @@
+"""Episode-weighted sampling for training (paper principle C) behind one small protocol."""
+
+from adademo_lerobot.samplers.weights import (
+    SAMPLERS,
+    FrameUniform,
+    SamplingScheme,
+    TaskUniform,
+    TrajectoryUniform,
+    frame_weights,
+    make_sampling_scheme,
+)
+from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
+
+__all__ = [
+    "SAMPLERS", "FrameUniform", "SamplingScheme", "TaskUniform", "TrajectoryUniform", "WeightedFrameSampler",
+    "frame_weights", "make_sampling_scheme",
+]  # fmt: skip

@@ -1,0 +1,121 @@
+"""How much each episode is sampled during training.
+
+A scheme gives every episode a probability; frames inside an episode are uniform over the frames the policy
+can train on. The per-frame weights are computed once and drawn from with replacement.
+
+- `frame`: uniform over frames (LeRobot's default) - long episodes, and tasks with long episodes, weigh more.
+- `task`: every task equally likely, then uniform over its trajectories.
+- `trajectory` (AdaDemo, principle C): every trajectory equally likely, so task k's share is n_k / sum(n);
+  tasks below `min_task_weight` are lifted to it and the rest share the remainder in proportion to n_k.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+import pandas as pd
+
+from adademo_lerobot.errors import AdaDemoError
+
+
+def floor_shares(shares: dict[str, float], floor: float) -> dict[str, float]:
+    """Raise every share below `floor` to it and renormalize the others so each final share is >= floor.
+
+    Water-filling: tasks pinned at the floor stay there, the rest keep their relative proportions.
+    """
+    if floor <= 0:
+        return dict(shares)
+    if floor * len(shares) > 1 + 1e-12:
+        raise AdaDemoError(f"min_task_weight={floor} is above 1/num_tasks={1 / len(shares):.4f}")
+    pinned: set[str] = set()
+    while True:
+        free = {k: v for k, v in shares.items() if k not in pinned}
+        remaining = 1.0 - floor * len(pinned)
+        total = sum(free.values())
+        scaled = {k: remaining * v / total for k, v in free.items()} if total > 0 else {}
+        newly = {k for k, v in scaled.items() if v < floor}
+        if not newly:
+            return {**{k: floor for k in pinned}, **scaled}
+        pinned |= newly
+
+
+class SamplingScheme(Protocol):
+    name: str
+
+    def episode_probabilities(self, episode_tasks: pd.Series, episode_lengths: pd.Series) -> np.ndarray:
+        """Probability of drawing each episode (sums to 1), in the order of `episode_tasks`."""
+
+
+class FrameUniform:
+    name = "frame"
+
+    def episode_probabilities(self, episode_tasks, episode_lengths) -> np.ndarray:
+        lengths = np.asarray(episode_lengths, dtype=np.float64)
+        return lengths / lengths.sum()
+
+
+class TaskUniform:
+    name = "task"
+
+    def episode_probabilities(self, episode_tasks, episode_lengths) -> np.ndarray:
+        tasks = np.asarray(episode_tasks)
+        counts = pd.Series(tasks).value_counts()
+        return np.array([1.0 / len(counts) / counts[t] for t in tasks])
+
+
+class TrajectoryUniform:
+    name = "trajectory"
+
+    def __init__(self, min_task_weight: float = 0.0):
+        self.min_task_weight = min_task_weight
+
+    def task_shares(self, episode_tasks) -> dict[str, float]:
+        counts = pd.Series(np.asarray(episode_tasks)).value_counts()
+        shares = {t: c / counts.sum() for t, c in counts.items()}
+        return floor_shares(shares, self.min_task_weight)
+
+    def episode_probabilities(self, episode_tasks, episode_lengths) -> np.ndarray:
+        tasks = np.asarray(episode_tasks)
+        counts = pd.Series(tasks).value_counts()
+        shares = self.task_shares(tasks)
+        return np.array([shares[t] / counts[t] for t in tasks])
+
+
+SAMPLERS = ("trajectory", "task", "frame")
+
+
+def make_sampling_scheme(name: str, min_task_weight: float, num_tasks: int) -> SamplingScheme:
+    if name not in SAMPLERS:
+        raise AdaDemoError(f"unknown --sampler={name!r}; choose one of {', '.join(SAMPLERS)}")
+    if not 0.0 <= min_task_weight <= 1.0 / max(num_tasks, 1) + 1e-12:
+        raise AdaDemoError(
+            f"--min_task_weight={min_task_weight} must be in [0, 1/num_tasks] = [0, {1 / max(num_tasks, 1):.4f}]"
+        )
+    if name == "frame":
+        return FrameUniform()
+    if name == "task":
+        return TaskUniform()
+    return TrajectoryUniform(min_task_weight)
+
+
+def frame_weights(
+    scheme: SamplingScheme, episodes: pd.DataFrame, num_frames: int, drop_n_last_frames: int = 0
+) -> np.ndarray:
+    """Per-frame probabilities over the whole dataset from per-episode probabilities.
+
+    `episodes` has `task`, `dataset_from_index`, `dataset_to_index`. The last `drop_n_last_frames` frames of
+    each episode get weight 0 (Diffusion cannot train on them, as in LeRobot's EpisodeAwareSampler).
+    """
+    starts = episodes["dataset_from_index"].to_numpy(np.int64)
+    ends = episodes["dataset_to_index"].to_numpy(np.int64) - drop_n_last_frames
+    usable = np.maximum(ends - starts, 0)
+    if (usable == 0).any():
+        short = list(episodes.index[usable == 0])
+        raise AdaDemoError(f"episodes {short} are too short to train on (drop_n_last_frames={drop_n_last_frames})")
+    lengths = pd.Series(usable, index=episodes.index)
+    probs = scheme.episode_probabilities(episodes["task"], lengths)
+    weights = np.zeros(num_frames, dtype=np.float64)
+    for start, end, p, n in zip(starts, ends, probs, usable):
+        weights[start:end] = p / n
+    return weights / weights.sum()

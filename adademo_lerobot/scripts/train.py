@@ -1,0 +1,12 @@
+"""adademo-train: train ACT or Diffusion with AdaDemo's episode-weighted sampler."""
+
+from adademo_lerobot.cli import run_command
+from adademo_lerobot.train import AdaDemoTrainConfig, train
+
+
+def main() -> None:
+    run_command(train, AdaDemoTrainConfig)
+
+
+if __name__ == "__main__":
+    main()

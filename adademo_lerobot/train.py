@@ -1,0 +1,258 @@
+"""`adademo-train`: LeRobot training with AdaDemo's episode-weighted sampler (paper principle C).
+
+Everything but the sampler is LeRobot's: `make_dataset`, `make_policy`, the pre/post-processors, optimizer
+presets, `update_policy` and `save_checkpoint`. LeRobot 0.4.4 has no sampler hook, so this module holds the
+few lines of the training loop that build the DataLoader around our `WeightedFrameSampler`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.train import TrainPipelineConfig
+from lerobot.configs.types import NormalizationMode
+from tqdm import tqdm
+
+from adademo_lerobot.dataset.store import load_suite_config, read_episode_metadata, recover_interrupted_write
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.samplers import WeightedFrameSampler, frame_weights, make_sampling_scheme
+
+log = logging.getLogger(__name__)
+POLICY_TYPES = ("act", "diffusion")
+# Normalization floor: MetaWorld observations have constant dims (padding, unused objects); dividing by a
+# near-zero std turns float noise at evaluation time into huge inputs.
+MIN_STD = 1e-2
+ADADEMO_TRAIN_INFO = "adademo_train.json"
+
+
+@dataclass
+class AdaDemoTrainConfig(TrainPipelineConfig):
+    # trajectory (AdaDemo C) | task (uniform over tasks) | frame (LeRobot's default: uniform over frames)
+    sampler: str = "trajectory"
+    # Minimum share of every task under `trajectory`, in [0, 1/num_tasks].
+    min_task_weight: float = 0.0
+    # torch intra-op threads (2-core default; lower it when env worker processes run beside training).
+    torch_threads: int = 2
+    num_workers: int = 0
+    batch_size: int = 64
+    steps: int = 3000
+    eval_freq: int = 0
+    log_freq: int = 200
+    save_freq: int = 1000
+
+    def validate(self) -> None:
+        from lerobot.configs import parser
+
+        if self.dataset.root is None:
+            raise AdaDemoError("--dataset.root is required (the adademo dataset to train on)")
+        if self.steps < 1 or self.batch_size < 1:
+            raise AdaDemoError(f"--steps and --batch_size must be >= 1 (got {self.steps}, {self.batch_size})")
+        if self.output_dir is None:
+            raise AdaDemoError("--output_dir is required")
+        self.output_dir = Path(self.output_dir)
+        policy_path = parser.get_path_arg("policy")
+        if self.resume:
+            last = find_last_checkpoint(self.output_dir)
+            if last is None:
+                raise AdaDemoError(f"--resume=true but {self.output_dir} has no complete checkpoint to resume from")
+            self.checkpoint_path = last
+            policy_path = str(last / "pretrained_model")
+        elif self.output_dir.exists() and any(self.output_dir.iterdir()):
+            raise AdaDemoError(
+                f"--output_dir={self.output_dir} already exists: pass --resume=true to continue it or choose another"
+            )
+        if policy_path:
+            if not (Path(policy_path) / "config.json").exists():
+                raise AdaDemoError(f"no LeRobot checkpoint at {policy_path} (expected .../pretrained_model/config.json)")
+            overrides = parser.get_cli_overrides("policy") if not self.resume else []
+            self.policy = PreTrainedConfig.from_pretrained(policy_path, cli_overrides=overrides)
+            self.policy.pretrained_path = Path(policy_path)
+        if self.policy is None:
+            raise AdaDemoError("choose a policy: --policy.type=act|diffusion, or --policy.path=CKPT to fine-tune")
+        if self.policy.type not in POLICY_TYPES:
+            raise AdaDemoError(f"unsupported --policy.type={self.policy.type!r}; choose one of {', '.join(POLICY_TYPES)}")
+        self.policy.push_to_hub = False
+        # ENV features are not normalized by LeRobot 0.4.4 by default; the task one-hot lives there.
+        self.policy.normalization_mapping.setdefault("ENV", NormalizationMode.MEAN_STD)
+        self.job_name = self.job_name or f"adademo_{self.policy.type}"
+        if self.use_policy_training_preset:
+            self.optimizer = self.policy.get_optimizer_preset()
+            self.scheduler = self.policy.get_scheduler_preset()
+
+
+def find_last_checkpoint(output_dir: Path) -> Path | None:
+    """The newest checkpoint whose weights and training state were both fully written."""
+    candidates = []
+    for d in (Path(output_dir) / "checkpoints").glob("[0-9]*"):
+        if (d / "pretrained_model" / "model.safetensors").exists() and (
+            d / "training_state" / "training_step.json"
+        ).exists():
+            candidates.append(d)
+    return max(candidates, key=lambda d: int(d.name)) if candidates else None
+
+
+def robust_stats(stats: dict, keys: list[str]) -> dict:
+    """Dataset stats with a floor on std and on the min-max range of low-dimensional features."""
+    out = {k: dict(v) for k, v in stats.items()}
+    for key in keys:
+        s = out.get(key)
+        if not s:
+            continue
+        if "std" in s:
+            s["std"] = np.maximum(np.asarray(s["std"], dtype=np.float64), MIN_STD)
+        if "min" in s and "max" in s:
+            lo, hi = np.asarray(s["min"], np.float64), np.asarray(s["max"], np.float64)
+            pad = np.maximum(MIN_STD - (hi - lo), 0) / 2
+            s["min"], s["max"] = lo - pad, hi + pad
+    return out
+
+
+def check_policy_matches_dataset(policy_cfg: PreTrainedConfig, dataset_features: dict) -> None:
+    """A checkpoint must read and write exactly the dataset's features (names and shapes)."""
+    from lerobot.datasets.utils import dataset_to_policy_features
+
+    available = dataset_to_policy_features(dataset_features)
+    problems = []
+    for key, ft in {**policy_cfg.input_features, **policy_cfg.output_features}.items():
+        if key not in available:
+            problems.append(f"{key} (not in the dataset)")
+        elif tuple(available[key].shape) != tuple(ft.shape):
+            problems.append(f"{key} shape {tuple(ft.shape)} in the checkpoint vs {tuple(available[key].shape)} in the dataset")
+    if problems:
+        raise AdaDemoError("the checkpoint's features do not match the dataset: " + "; ".join(problems))
+
+
+def train(cfg: AdaDemoTrainConfig) -> Path:
+    """Train (or fine-tune, or resume) and return the last checkpoint's `pretrained_model` folder."""
+    from accelerate import Accelerator
+    from lerobot.datasets.factory import make_dataset
+    from lerobot.optim.factory import make_optimizer_and_scheduler
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+    from lerobot.scripts.lerobot_train import update_policy
+    from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
+    from lerobot.utils.random_utils import set_seed
+    from lerobot.utils.train_utils import (
+        get_step_checkpoint_dir,
+        load_training_state,
+        save_checkpoint,
+        update_last_checkpoint,
+    )
+
+    cfg.validate()
+    torch.set_num_threads(cfg.torch_threads)
+    root = Path(cfg.dataset.root)
+    if not (root / "meta" / "info.json").exists():
+        raise AdaDemoError(f"no LeRobot dataset at {root}")
+    recover_interrupted_write(root)
+    episodes = read_episode_metadata(root)
+    suite_cfg = load_suite_config(root)
+    scheme = make_sampling_scheme(cfg.sampler, cfg.min_task_weight, episodes["task"].nunique())
+    if cfg.seed is not None:
+        set_seed(cfg.seed)
+
+    dataset = make_dataset(cfg)
+    if cfg.policy.pretrained_path is not None:
+        check_policy_matches_dataset(cfg.policy, dataset.meta.features)
+    low_dim = [k for k, ft in dataset.meta.features.items() if k.startswith("observation") and ft["dtype"] == "float32"]
+    low_dim.append("action")
+    stats = robust_stats(dataset.meta.stats, low_dim)
+    policy = make_policy(cfg=cfg.policy, ds_meta=dataset.meta)
+    processor_kwargs: dict = {}
+    if cfg.resume:
+        pass  # the checkpoint's processors already hold the stats it was trained with
+    elif cfg.policy.pretrained_path is not None:
+        norm = {"stats": stats, "norm_map": policy.config.normalization_mapping}
+        processor_kwargs["preprocessor_overrides"] = {
+            "device_processor": {"device": policy.config.device},
+            "normalizer_processor": {**norm, "features": {**policy.config.input_features, **policy.config.output_features}},
+        }
+        processor_kwargs["postprocessor_overrides"] = {
+            "unnormalizer_processor": {**norm, "features": policy.config.output_features},
+        }
+    else:
+        processor_kwargs["dataset_stats"] = stats
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy_cfg=cfg.policy, pretrained_path=cfg.policy.pretrained_path, **processor_kwargs
+    )
+    optimizer, lr_scheduler = make_optimizer_and_scheduler(cfg, policy)
+    step = 0
+    if cfg.resume:
+        step, optimizer, lr_scheduler = load_training_state(cfg.checkpoint_path, optimizer, lr_scheduler)
+    if step >= cfg.steps:
+        print(f"training already finished at step {step} ({cfg.output_dir})")
+        return cfg.output_dir / "checkpoints" / "last" / "pretrained_model"
+
+    drop = int(getattr(cfg.policy, "drop_n_last_frames", 0) or 0)
+    weights = frame_weights(scheme, episodes, dataset.num_frames, drop)
+    sampler = WeightedFrameSampler(
+        weights, num_samples=(cfg.steps - step) * cfg.batch_size, seed=cfg.seed or 0, skip=step * cfg.batch_size
+    )
+    dataloader = torch.utils.data.DataLoader(
+        dataset, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.num_workers, drop_last=False,
+        prefetch_factor=2 if cfg.num_workers > 0 else None,
+    )
+    accelerator = Accelerator(cpu=policy.config.device == "cpu", step_scheduler_with_optimizer=False)
+    policy, optimizer, lr_scheduler = accelerator.prepare(policy, optimizer, lr_scheduler)
+    metrics = {
+        "loss": AverageMeter("loss", ":.3f"),
+        "grad_norm": AverageMeter("grdn", ":.3f"),
+        "lr": AverageMeter("lr", ":0.1e"),
+        "update_s": AverageMeter("updt_s", ":.3f"),
+        "dataloading_s": AverageMeter("data_s", ":.3f"),
+    }
+    tracker = MetricsTracker(cfg.batch_size, dataset.num_frames, dataset.num_episodes, metrics, initial_step=step)
+    info = {
+        "sampler": cfg.sampler,
+        "min_task_weight": cfg.min_task_weight,
+        "episodes": int(len(episodes)),
+        "frames": int(dataset.num_frames),
+        "episodes_per_task": {k: int(v) for k, v in episodes["task"].value_counts().items()},
+        "suite": suite_cfg.to_dict(),
+    }
+    wandb_logger = None
+    if cfg.wandb.enable and cfg.wandb.project:
+        from lerobot.rl.wandb_utils import WandBLogger
+
+        wandb_logger = WandBLogger(cfg)
+
+    policy.train()
+    start, start_step = time.perf_counter(), step
+    bar = tqdm(total=cfg.steps, initial=step, desc=f"train {cfg.policy.type}/{cfg.sampler}", unit="step",
+               dynamic_ncols=True)
+    for batch in dataloader:
+        t0 = time.perf_counter()
+        batch = preprocessor(batch)
+        tracker.dataloading_s = time.perf_counter() - t0
+        tracker, output = update_policy(
+            tracker, policy, batch, optimizer, cfg.optimizer.grad_clip_norm, accelerator=accelerator,
+            lr_scheduler=lr_scheduler,
+        )
+        step += 1
+        tracker.step()
+        bar.update(1)
+        bar.set_postfix(loss=f"{tracker.loss.val:.3f}", steps_s=f"{(step - start_step) / (time.perf_counter() - start):.1f}")
+        if cfg.log_freq > 0 and step % cfg.log_freq == 0:
+            log.info(str(tracker))
+            if wandb_logger:
+                wandb_logger.log_dict({**tracker.to_dict(), **(output or {})}, step)
+            tracker.reset_averages()
+        if step % cfg.save_freq == 0 or step == cfg.steps:
+            checkpoint_dir = get_step_checkpoint_dir(cfg.output_dir, cfg.steps, step)
+            save_checkpoint(checkpoint_dir, step, cfg, accelerator.unwrap_model(policy), optimizer, lr_scheduler,
+                            preprocessor, postprocessor)
+            (checkpoint_dir / "pretrained_model" / ADADEMO_TRAIN_INFO).write_text(json.dumps(info, indent=2))
+            update_last_checkpoint(checkpoint_dir)
+        if step >= cfg.steps:
+            break
+    bar.close()
+    elapsed = time.perf_counter() - start
+    print(f"trained {step - start_step} steps in {elapsed:.1f} s ({(step - start_step) / max(elapsed, 1e-9):.1f} steps/s); "
+          f"checkpoint: {cfg.output_dir / 'checkpoints' / 'last' / 'pretrained_model'}")
+    return cfg.output_dir / "checkpoints" / "last" / "pretrained_model"
