@@ -6,6 +6,7 @@ from adademo_lerobot.samplers.weights import (
     SamplingScheme,
     TaskUniform,
     TrajectoryUniform,
+    floor_shares,
     frame_weights,
     make_sampling_scheme,
 )
@@ -13,5 +14,5 @@ from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 
 __all__ = [
     "SAMPLERS", "FrameUniform", "SamplingScheme", "TaskUniform", "TrajectoryUniform", "WeightedFrameSampler",
-    "frame_weights", "make_sampling_scheme",
+    "floor_shares", "frame_weights", "make_sampling_scheme",
 ]  # fmt: skip

@@ -1,0 +1,146 @@
+"""adademo-train on real datasets: ACT and Diffusion, reload, fine-tune from stock lerobot-train, resume, errors."""
+
+import json
+import shutil
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import BIN, run_cli
+
+TINY_ACT = ["--policy.type=act", "--policy.dim_model=32", "--policy.dim_feedforward=64", "--policy.n_heads=2",
+            "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1", "--policy.n_vae_encoder_layers=1",
+            "--policy.chunk_size=10", "--policy.n_action_steps=5", "--policy.device=cpu", "--batch_size=8"]
+TINY_DIFFUSION = ["--policy.type=diffusion", "--policy.down_dims=[32,64]", "--policy.diffusion_step_embed_dim=32",
+                  "--policy.horizon=16", "--policy.n_action_steps=8", "--policy.num_inference_steps=4",
+                  "--policy.device=cpu", "--batch_size=8"]
+
+
+def data_args(root):
+    return ["--dataset.repo_id=local/demo", f"--dataset.root={root}"]
+
+
+def load(ckpt):
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    cfg = PreTrainedConfig.from_pretrained(ckpt)
+    cfg.pretrained_path = ckpt
+    policy = get_policy_class(cfg.type).from_pretrained(ckpt, config=cfg)
+    policy.eval()
+    pre, post = make_pre_post_processors(cfg, pretrained_path=str(ckpt))
+    return policy, pre, post
+
+
+def first_action(ckpt, dataset_root, seed=0):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    item = LeRobotDataset("local/demo", root=dataset_root)[0]
+    obs = {k: v.unsqueeze(0) for k, v in item.items() if k.startswith("observation.")}
+    obs["task"] = [item["task"]]
+    policy, pre, post = load(ckpt)
+    torch.manual_seed(seed)
+    with torch.inference_mode():
+        return post(policy.select_action(pre(obs))).numpy()
+
+
+@pytest.fixture(scope="module")
+def act_run(reach_push_dataset, tmp_path_factory):
+    out = tmp_path_factory.mktemp("act") / "run"
+    run_cli("adademo-train", *data_args(reach_push_dataset), *TINY_ACT, "--steps=4", "--save_freq=2",
+            f"--output_dir={out}", "--sampler=trajectory", "--min_task_weight=0.3")
+    return out
+
+
+def test_act_checkpoint_is_standard_and_reloads_to_identical_actions(act_run, reach_push_dataset):
+    ckpt = act_run / "checkpoints" / "last" / "pretrained_model"
+    assert (act_run / "checkpoints" / "000004" / "training_state" / "training_step.json").exists()
+    assert {"config.json", "model.safetensors", "policy_preprocessor.json", "train_config.json"} <= {
+        p.name for p in ckpt.iterdir()}
+    config = json.loads((ckpt / "config.json").read_text())
+    assert config["type"] == "act" and config["normalization_mapping"]["ENV"] == "MEAN_STD"
+    train_cfg = json.loads((ckpt / "train_config.json").read_text())
+    assert train_cfg["sampler"] == "trajectory" and train_cfg["steps"] == 4
+    a1, a2 = first_action(ckpt, reach_push_dataset), first_action(ckpt, reach_push_dataset)
+    np.testing.assert_array_equal(a1, a2)
+    assert a1.shape == (1, 4)
+    # The weights are the trained ones, not a fresh init: an earlier checkpoint acts differently.
+    a_step2 = first_action(act_run / "checkpoints" / "000002" / "pretrained_model", reach_push_dataset)
+    assert not np.array_equal(a1, a_step2)
+    info = json.loads((ckpt / "adademo_train.json").read_text())
+    assert info["episodes_per_task"] == {"reach-v3": 3, "push-v3": 3}
+
+
+def test_diffusion_trains_and_reloads(reach_push_dataset, tmp_path):
+    out = tmp_path / "diffusion"
+    run_cli("adademo-train", *data_args(reach_push_dataset), *TINY_DIFFUSION, "--steps=2", f"--output_dir={out}",
+            "--sampler=task")
+    ckpt = out / "checkpoints" / "last" / "pretrained_model"
+    assert json.loads((ckpt / "config.json").read_text())["type"] == "diffusion"
+    np.testing.assert_array_equal(first_action(ckpt, reach_push_dataset, 1), first_action(ckpt, reach_push_dataset, 1))
+
+
+def test_fine_tune_from_a_stock_lerobot_train_checkpoint(reach_push_dataset, tmp_path):
+    stock = tmp_path / "stock"
+    proc = subprocess.run(
+        [str(BIN / "lerobot-train"), *data_args(reach_push_dataset), *TINY_ACT, "--steps=2", "--save_freq=2",
+         f"--output_dir={stock}", "--policy.push_to_hub=false", "--num_workers=0", "--eval_freq=0", "--wandb.enable=false"],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    stock_ckpt = stock / "checkpoints" / "last" / "pretrained_model"
+    out = tmp_path / "finetuned"
+    run_cli("adademo-train", *data_args(reach_push_dataset), f"--policy.path={stock_ckpt}", "--steps=2",
+            "--batch_size=8", f"--output_dir={out}")
+    ckpt = out / "checkpoints" / "last" / "pretrained_model"
+    assert json.loads((ckpt / "config.json").read_text())["dim_model"] == 32
+    assert first_action(ckpt, reach_push_dataset).shape == (1, 4)
+
+
+def test_resume_after_kill_loses_at_most_the_steps_since_the_last_checkpoint(reach_push_dataset, tmp_path):
+    out = tmp_path / "killed"
+    args = [*data_args(reach_push_dataset), *TINY_ACT, "--steps=400", "--save_freq=3", f"--output_dir={out}"]
+    proc = subprocess.Popen([str(BIN / "adademo-train"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while not (out / "checkpoints" / "000006" / "training_state" / "training_step.json").exists():
+        assert time.time() < deadline and proc.poll() is None, "training did not reach step 6"
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    from adademo_lerobot.train import find_last_checkpoint
+
+    last = find_last_checkpoint(out)
+    assert int(last.name) >= 6
+    resumed = run_cli("adademo-train", *data_args(reach_push_dataset), "--steps=400", f"--output_dir={out}",
+                      "--resume=true", "--batch_size=8", "--save_freq=3")
+    assert f"trained {400 - int(last.name)} steps" in resumed.stdout
+    assert json.loads((out / "checkpoints" / "last" / "training_state" / "training_step.json").read_text())["step"] == 400
+
+
+def test_bad_input(reach_push_dataset, act_run, tmp_path):
+    def fails(*args, match):
+        proc = run_cli("adademo-train", *args, check=False)
+        assert proc.returncode == 2, proc.stderr[-2000:]
+        last = proc.stderr.strip().splitlines()[-1]
+        assert "error:" in last and match in last, last
+
+    common = [*data_args(reach_push_dataset), "--steps=1"]
+    fails(*common, "--policy.type=pi0x", f"--output_dir={tmp_path / 'a'}", match="pi0x")
+    fails(*common, *TINY_ACT, "--sampler=weighted", f"--output_dir={tmp_path / 'b'}", match="sampler")
+    fails(*common, *TINY_ACT, "--min_task_weight=0.6", f"--output_dir={tmp_path / 'c'}", match="min_task_weight")
+    fails(*common, *TINY_ACT, f"--output_dir={act_run}", match="--resume=true")
+    plain = tmp_path / "plain"
+    shutil.copytree(reach_push_dataset, plain)
+    shutil.rmtree(plain / "meta" / "adademo")
+    fails(*data_args(plain), "--steps=1", *TINY_ACT, f"--output_dir={tmp_path / 'd'}", match="adademo-collect")
+    # A checkpoint trained on 2 tasks cannot be fine-tuned on a 3-task dataset (one-hot size differs).
+    three = tmp_path / "three"
+    run_cli("adademo-collect", "--suite.tasks=reach-v3,push-v3,drawer-open-v3", "--episodes_per_task=1",
+            "--dataset.repo_id=local/demo", f"--dataset.root={three}")
+    fails(*data_args(three), "--steps=1", f"--policy.path={act_run / 'checkpoints/last/pretrained_model'}",
+          f"--output_dir={tmp_path / 'e'}", match="observation.environment_state")
+    assert not any((tmp_path / d).exists() for d in "abcde")
