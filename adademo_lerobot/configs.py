@@ -35,3 +35,29 @@ class CollectConfig:
     resume: bool = False
     # Episodes buffered in memory between dataset commits (a kill loses at most these).
     commit_every: int = 10
+
+
+@dataclass
+class PolicyPathArgs:
+    # A LeRobot checkpoint folder: .../checkpoints/last/pretrained_model (ACT or Diffusion).
+    path: str | None = None
+
+
+@dataclass
+class EvalBatchArgs:
+    # Episodes run side by side (one SyncVectorEnv); the policy sees a batch of this size.
+    batch_size: int = 10
+
+
+@dataclass
+class EvalCommandConfig:
+    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+    # The suite is rebuilt from the dataset (meta/adademo/suite.json); without a dataset, from --suite.*.
+    dataset: DatasetArgs = field(default_factory=DatasetArgs)
+    suite: SuiteConfig = field(default_factory=default_suite)
+    episodes_per_task: int = 10
+    seed: int = 0
+    output_dir: str | None = None
+    eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
+    device: str = "cpu"
+    torch_threads: int = 2

@@ -40,3 +40,17 @@ def file_digests(root: Path) -> dict[str, str]:
         for p in sorted(root.rglob("*"))
         if p.is_file()
     }
+
+
+TINY_ACT = ["--policy.type=act", "--policy.dim_model=32", "--policy.dim_feedforward=64", "--policy.n_heads=2",
+            "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1", "--policy.n_vae_encoder_layers=1",
+            "--policy.chunk_size=10", "--policy.n_action_steps=5", "--policy.device=cpu", "--batch_size=8"]
+
+
+@pytest.fixture(scope="session")
+def act_run(reach_push_dataset, tmp_path_factory):
+    """A weak ACT (4 steps) trained by `adademo-train` on the reach/push dataset."""
+    out = tmp_path_factory.mktemp("act") / "run"
+    run_cli("adademo-train", "--dataset.repo_id=local/demo", f"--dataset.root={reach_push_dataset}", *TINY_ACT,
+            "--steps=4", "--save_freq=2", f"--output_dir={out}", "--sampler=trajectory", "--min_task_weight=0.3")
+    return out

@@ -7,14 +7,10 @@ import subprocess
 import time
 
 import numpy as np
-import pytest
 import torch
 
-from conftest import BIN, run_cli
+from conftest import BIN, TINY_ACT, run_cli
 
-TINY_ACT = ["--policy.type=act", "--policy.dim_model=32", "--policy.dim_feedforward=64", "--policy.n_heads=2",
-            "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1", "--policy.n_vae_encoder_layers=1",
-            "--policy.chunk_size=10", "--policy.n_action_steps=5", "--policy.device=cpu", "--batch_size=8"]
 TINY_DIFFUSION = ["--policy.type=diffusion", "--policy.down_dims=[32,64]", "--policy.diffusion_step_embed_dim=32",
                   "--policy.horizon=16", "--policy.n_action_steps=8", "--policy.num_inference_steps=4",
                   "--policy.device=cpu", "--batch_size=8"]
@@ -46,14 +42,6 @@ def first_action(ckpt, dataset_root, seed=0):
     torch.manual_seed(seed)
     with torch.inference_mode():
         return post(policy.select_action(pre(obs))).numpy()
-
-
-@pytest.fixture(scope="module")
-def act_run(reach_push_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("act") / "run"
-    run_cli("adademo-train", *data_args(reach_push_dataset), *TINY_ACT, "--steps=4", "--save_freq=2",
-            f"--output_dir={out}", "--sampler=trajectory", "--min_task_weight=0.3")
-    return out
 
 
 def test_act_checkpoint_is_standard_and_reloads_to_identical_actions(act_run, reach_push_dataset):

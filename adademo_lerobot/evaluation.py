@@ -1,0 +1,178 @@
+"""Evaluate a LeRobot policy on chosen initial states, batched over vectorized envs.
+
+Each sub-env of a `SyncVectorEnv` is told its initial state through `set_attr("pending_initial_state", ...)`
+before LeRobot's own `rollout()` resets the batch, so the policy sees a batch and every episode starts from
+exactly the state we asked for.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import torch
+
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.suites.base import TaskSuite, derive_seed
+
+
+@dataclass
+class EpisodeRecord:
+    task: str
+    seed: int
+    initial_state: list[float]
+    success: bool
+    steps: int
+    sum_reward: float
+
+
+@dataclass
+class LoadedPolicy:
+    policy: torch.nn.Module
+    preprocessor: object
+    postprocessor: object
+    config: object
+    path: Path
+
+
+def load_policy(path: str | Path, device: str = "cpu") -> LoadedPolicy:
+    """Any LeRobot ACT/Diffusion checkpoint folder (`.../pretrained_model`), ours or stock `lerobot-train`'s."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    path = Path(path)
+    if not (path / "config.json").exists() or not (path / "model.safetensors").exists():
+        raise AdaDemoError(f"no LeRobot checkpoint at {path} (expected config.json and model.safetensors; "
+                           "pass the .../checkpoints/last/pretrained_model folder)")
+    cfg = PreTrainedConfig.from_pretrained(path)
+    cfg.device = device
+    cfg.pretrained_path = path
+    policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
+    policy.eval()
+    pre, post = make_pre_post_processors(
+        cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": device}}
+    )
+    return LoadedPolicy(policy, pre, post, cfg, path)
+
+
+def evaluation_seeds(seed: int, task: str, n: int) -> list[int]:
+    """The fixed evaluation set: never used for collection (collection seeds use another derivation key)."""
+    return [derive_seed(seed, "eval", task, k) for k in range(n)]
+
+
+class BatchedEvaluator:
+    """Runs a policy from given initial states, `batch_size` episodes at a time per task."""
+
+    def __init__(self, suite: TaskSuite, loaded: LoadedPolicy, batch_size: int = 10):
+        if batch_size < 1:
+            raise AdaDemoError(f"--eval.batch_size must be >= 1, got {batch_size}")
+        from lerobot.processor import PolicyProcessorPipeline
+
+        self.suite, self.loaded, self.batch_size = suite, loaded, batch_size
+        self._identity = PolicyProcessorPipeline(steps=[])
+        self._envs: dict[tuple[str, int], gym.vector.SyncVectorEnv] = {}
+        self.env_steps = 0
+
+    def _vector_env(self, task: str, n: int) -> gym.vector.SyncVectorEnv:
+        if (task, n) not in self._envs:
+            self._envs[(task, n)] = gym.vector.SyncVectorEnv(
+                [lambda: self.suite.make_env(task, terminate_on_success=True) for _ in range(n)]
+            )
+        return self._envs[(task, n)]
+
+    def run(self, task: str, seeds: list[int], states: list[np.ndarray] | None = None) -> list[EpisodeRecord]:
+        from lerobot.scripts.lerobot_eval import rollout
+
+        if states is None:
+            states = [self.suite.sample_initial_state(task, s) for s in seeds]
+        records: list[EpisodeRecord] = []
+        for begin in range(0, len(seeds), self.batch_size):
+            batch_seeds, batch_states = seeds[begin : begin + self.batch_size], states[begin : begin + self.batch_size]
+            env = self._vector_env(task, len(batch_seeds))
+            env.set_attr("pending_initial_state", [np.asarray(s, dtype=np.float64) for s in batch_states])
+            with torch.inference_mode():
+                out = rollout(env, self.loaded.policy, self._identity, self._identity,
+                              self.loaded.preprocessor, self.loaded.postprocessor)
+            done = out["done"].numpy()
+            success = out["success"].numpy()
+            reward = out["reward"].numpy()
+            for i, (s, st) in enumerate(zip(batch_seeds, batch_states)):
+                steps = int(np.argmax(done[i]) + 1) if done[i].any() else done.shape[1]
+                self.env_steps += steps
+                records.append(EpisodeRecord(task, int(s), np.asarray(st, np.float64).tolist(),
+                                             bool(success[i, :steps].any()), steps, float(reward[i, :steps].sum())))
+        return records
+
+    def close(self) -> None:
+        for env in self._envs.values():
+            env.close()
+
+
+def success_table(records: list[EpisodeRecord], tasks: list[str]) -> pd.DataFrame:
+    df = pd.DataFrame([asdict(r) for r in records])
+    rows = []
+    for task in tasks:
+        sub = df[df.task == task]
+        rows.append({"task": task, "episodes": len(sub), "successes": int(sub.success.sum()),
+                     "success_rate": float(sub.success.mean()) if len(sub) else float("nan"),
+                     "mean_steps": float(sub.steps.mean()) if len(sub) else float("nan")})
+    table = pd.DataFrame(rows)
+    avg = {"task": "average", "episodes": int(table.episodes.sum()), "successes": int(table.successes.sum()),
+           "success_rate": float(table.success_rate.mean()), "mean_steps": float(df.steps.mean())}
+    return pd.concat([table, pd.DataFrame([avg])], ignore_index=True)
+
+
+def format_success_table(table: pd.DataFrame) -> str:
+    lines = [f"{'task':<28} {'success':>9} {'rate':>7} {'steps':>7}", "-" * 54]
+    for _, r in table.iterrows():
+        lines.append(f"{r.task:<28} {r.successes:>4}/{r.episodes:<4} {100 * r.success_rate:>6.1f}% {r.mean_steps:>7.1f}")
+    return "\n".join(lines)
+
+
+def write_eval_outputs(output_dir: Path, records: list[EpisodeRecord], table: pd.DataFrame, meta: dict) -> None:
+    output_dir.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame([asdict(r) for r in records]).to_parquet(output_dir / "eval_episodes.parquet")
+    summary = {**meta, "per_task": table.to_dict(orient="records")}
+    (output_dir / "eval_summary.json").write_text(json.dumps(summary, indent=2))
+
+
+def run_eval(cfg) -> pd.DataFrame:
+    """`adademo-eval`."""
+    from adademo_lerobot.dataset.features import dataset_features
+    from adademo_lerobot.dataset.store import load_suite_config
+    from adademo_lerobot.suites.base import make_suite
+    from adademo_lerobot.train import check_policy_matches_dataset
+
+    if cfg.policy.path is None:
+        raise AdaDemoError("--policy.path is required (a LeRobot checkpoint's pretrained_model folder)")
+    if cfg.episodes_per_task < 1:
+        raise AdaDemoError(f"--episodes_per_task must be >= 1, got {cfg.episodes_per_task}")
+    if cfg.output_dir is None:
+        raise AdaDemoError("--output_dir is required")
+    suite_cfg = load_suite_config(Path(cfg.dataset.root)) if cfg.dataset.root else cfg.suite
+    suite = make_suite(suite_cfg)
+    torch.set_num_threads(cfg.torch_threads)
+    loaded = load_policy(cfg.policy.path, cfg.device)
+    check_policy_matches_dataset(loaded.config, dataset_features(suite))
+    evaluator = BatchedEvaluator(suite, loaded, cfg.eval.batch_size)
+    start = time.perf_counter()
+    records: list[EpisodeRecord] = []
+    from tqdm import tqdm
+
+    for task in tqdm(suite.tasks, desc="evaluating", unit="task", dynamic_ncols=True):
+        records += evaluator.run(task, evaluation_seeds(cfg.seed, task, cfg.episodes_per_task))
+    evaluator.close()
+    elapsed = time.perf_counter() - start
+    table = success_table(records, suite.tasks)
+    print(format_success_table(table))
+    write_eval_outputs(Path(cfg.output_dir), records, table, {
+        "policy_path": str(cfg.policy.path), "seed": cfg.seed, "episodes_per_task": cfg.episodes_per_task,
+        "env_steps": evaluator.env_steps, "wall_seconds": elapsed, "suite": suite.config.to_dict()})
+    print(f"{evaluator.env_steps} env steps in {elapsed:.1f} s ({evaluator.env_steps / max(elapsed, 1e-9):.0f} steps/s); "
+          f"records: {Path(cfg.output_dir) / 'eval_episodes.parquet'}")
+    return table

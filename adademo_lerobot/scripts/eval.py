@@ -1,0 +1,13 @@
+"""adademo-eval: success of a LeRobot policy per task and per initial state."""
+
+from adademo_lerobot.cli import run_command
+from adademo_lerobot.configs import EvalCommandConfig
+from adademo_lerobot.evaluation import run_eval
+
+
+def main() -> None:
+    run_command(run_eval, EvalCommandConfig)
+
+
+if __name__ == "__main__":
+    main()
