@@ -18,6 +18,13 @@ fi
 "$VENV/bin/python" -c "import adademo_lerobot, lerobot, metaworld, gymnasium_robotics" \
   || { echo "error: the install into $VENV failed; see pip's output above"; exit 1; }
 
+# Camera images on machines without a GPU render with OSMesa (tests of pixels_state need it).
+if ! ldconfig -p 2>/dev/null | grep -q libOSMesa && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+  echo "installing libosmesa6 (CPU rendering for --suite.obs_type=pixels_state)"
+  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libosmesa6) >/dev/null 2>&1 \
+    || echo "warning: could not install libosmesa6; pixel observations will not render on this machine"
+fi
+
 # Two cores: keep torch from oversubscribing them beside env worker processes (see README, "Threads").
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-2}"
 
