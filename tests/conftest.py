@@ -21,6 +21,15 @@ def run_cli(command: str, *args: str, check: bool = True, timeout: int = 900) ->
     return proc
 
 
+def assert_cli_error(command: str, *args: str, match: str) -> str:
+    """The command must refuse the input with exit code 2 and one `error:` line naming the problem."""
+    proc = run_cli(command, *args, check=False)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "error:" in last and match in last, last
+    return last
+
+
 @pytest.fixture(scope="session")
 def reach_push_dataset(tmp_path_factory) -> Path:
     """The issue's example: 3 demos each of reach-v3 and push-v3, collected by `adademo-collect`."""

@@ -12,7 +12,7 @@ from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collec
 from adademo_lerobot.dataset.store import EPISODE_COLUMNS, DemoDataset, read_episode_metadata
 from adademo_lerobot.suites.base import make_suite
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig, make_raw_env
-from conftest import file_digests, run_cli
+from conftest import assert_cli_error, file_digests, run_cli
 
 
 def test_stock_lerobot_loads_six_episodes_with_adademo_columns(reach_push_dataset):
@@ -153,11 +153,7 @@ def test_bad_input_gets_one_clear_error_and_no_change(tmp_path, reach_push_datas
     base = ["--dataset.repo_id=local/demo", "--episodes_per_task=1"]
 
     def fails(*args, match):
-        proc = run_cli("adademo-collect", *base, *args, check=False)
-        assert proc.returncode == 2, proc.stderr[-2000:]
-        last = proc.stderr.strip().splitlines()[-1]
-        assert last.startswith("error:") and match in last, last
-        return last
+        return assert_cli_error("adademo-collect", *base, *args, match=match)
 
     fails("--suite.tasks=reach-v3,pusj-v3", f"--dataset.root={tmp_path / 'a'}", match="push-v3")
     fails("--suite.tasks=", f"--dataset.root={tmp_path / 'b'}", match="empty task list")

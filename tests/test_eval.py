@@ -8,7 +8,7 @@ import pandas as pd
 from adademo_lerobot.evaluation import BatchedEvaluator, evaluation_seeds, load_policy
 from adademo_lerobot.suites.base import make_suite
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
-from conftest import run_cli
+from conftest import assert_cli_error, run_cli
 
 
 def test_eval_cli_writes_records_and_success_rates(act_run, reach_push_dataset, tmp_path):
@@ -48,10 +48,7 @@ def test_batching_does_not_change_outcomes(act_run):
 
 def test_eval_bad_input(act_run, tmp_path):
     def fails(*args, match):
-        proc = run_cli("adademo-eval", *args, check=False)
-        assert proc.returncode == 2, proc.stderr[-2000:]
-        last = proc.stderr.strip().splitlines()[-1]
-        assert "error:" in last and match in last, last
+        return assert_cli_error("adademo-eval", *args, match=match)
 
     ckpt = act_run / "checkpoints" / "last" / "pretrained_model"
     fails(f"--policy.path={tmp_path / 'nothing'}", "--suite.tasks=reach-v3,push-v3", f"--output_dir={tmp_path}/o",

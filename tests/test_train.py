@@ -9,7 +9,7 @@ import time
 import numpy as np
 import torch
 
-from conftest import BIN, TINY_ACT, run_cli
+from conftest import BIN, TINY_ACT, assert_cli_error, run_cli
 
 TINY_DIFFUSION = ["--policy.type=diffusion", "--policy.down_dims=[32,64]", "--policy.diffusion_step_embed_dim=32",
                   "--policy.horizon=16", "--policy.n_action_steps=8", "--policy.num_inference_steps=4",
@@ -111,10 +111,7 @@ def test_resume_after_kill_loses_at_most_the_steps_since_the_last_checkpoint(rea
 
 def test_bad_input(reach_push_dataset, act_run, tmp_path):
     def fails(*args, match):
-        proc = run_cli("adademo-train", *args, check=False)
-        assert proc.returncode == 2, proc.stderr[-2000:]
-        last = proc.stderr.strip().splitlines()[-1]
-        assert "error:" in last and match in last, last
+        return assert_cli_error("adademo-train", *args, match=match)
 
     common = [*data_args(reach_push_dataset), "--steps=1"]
     fails(*common, "--policy.type=pi0x", f"--output_dir={tmp_path / 'a'}", match="pi0x")
