@@ -61,3 +61,29 @@ class EvalCommandConfig:
     eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
     device: str = "cpu"
     torch_threads: int = 2
+
+
+@dataclass
+class ExpandConfig:
+    dataset: DatasetArgs = field(default_factory=DatasetArgs)
+    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+    # adademo (principles A+B) | uniform (the paper's baseline) | task_only (ablation A)
+    strategy: str = "adademo"
+    # E: evaluation successes per task that end a task's collection (adademo; task_only's allocation).
+    target_successes: int = 10
+    # CAP: at most this many new demos per task in this round (the paper's per-round cap).
+    max_demos_per_task: int = 50
+    # N: new demos per task for `uniform`.
+    demos_per_task: int = 10
+    # Bound on evaluation episodes per task so a task the expert cannot solve still ends (default 2 x (E + CAP)).
+    max_eval_episodes_per_task: int | None = None
+    # Evaluation episodes per task used to estimate SR_k (task_only, plan_only).
+    plan_episodes_per_task: int = 20
+    # Evaluate and print the predicted demos per task (N_k = E/SR_k - E, capped) without collecting.
+    plan_only: bool = False
+    seed: int = 0
+    collector: CollectorConfig = field(default_factory=default_collector)
+    eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
+    device: str = "cpu"
+    torch_threads: int = 2
+    commit_every: int = 10

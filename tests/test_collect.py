@@ -122,8 +122,8 @@ def test_expert_retries_and_skips_failed_initial_states(tmp_path):
                               source="initial")
     summary = summaries["peg-insert-side-v3"]
     meta = read_episode_metadata(tmp_path / "peg")
-    assert len(meta) == summary.saved == wanted
-    failed_seeds = {f["seed"] for f in summary.failed_states}
+    assert len(meta) == summary.demos_added == wanted
+    failed_seeds = {f["seed"] for f in summary.expert_failed_states}
     assert len(failed_seeds) == summary.expert_failures >= 1
     assert failed.seed in failed_seeds
     assert not failed_seeds & set(meta["adademo/seed"])

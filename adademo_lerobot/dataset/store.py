@@ -248,3 +248,27 @@ class DemoDataset:
         else:
             _commit_write(self.root)
         return indices
+
+
+class BufferedAppender:
+    """Buffers demonstrations and commits them to the dataset every `commit_every` episodes."""
+
+    def __init__(self, dataset: DemoDataset, suite: TaskSuite, round_index: int, source: str, collector: str,
+                 commit_every: int):
+        self.dataset, self.suite = dataset, suite
+        self.round_index, self.source, self.collector = round_index, source, collector
+        self.commit_every = max(1, commit_every)
+        self.buffer: list[Demonstration] = []
+        self.written: list[int] = []
+
+    def add(self, demo: Demonstration) -> None:
+        self.buffer.append(demo)
+        if len(self.buffer) >= self.commit_every:
+            self.flush()
+
+    def flush(self) -> None:
+        if self.buffer:
+            self.written += self.dataset.append(
+                self.suite, self.buffer, self.round_index, self.source, self.collector
+            )
+            self.buffer = []

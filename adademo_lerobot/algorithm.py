@@ -1,0 +1,50 @@
+"""AdaDemo, Algorithm 1 of the paper ("Adaptive Online Demo Expansion"), read top to bottom.
+
+    Train a multi-task policy pi on D_0
+    for each round i:
+        choose E_i (target successes) for the budget
+        for each task T_k:
+            D_i^k = {}, c = 0
+            repeat
+                sample an initial state s of T_k; evaluate pi on s
+                if pi failed on s:  D_i^k += G(s)        (principle B: demos where the policy fails)
+                else:               c += 1
+            until c = E_i                                (principle A: weak tasks get more demos)
+        D = D_0 u ... u D_i;  re-train pi on D          (principle C: trajectory-uniform sampling)
+
+`collect_on_failed_states` is the inner loop (lines 4-16) for one task. The outer loop (train, rounds, retrain)
+is `adademo_lerobot.run`, which calls this through the `adademo` strategy. Evaluations run in batches no
+larger than the fewest episodes that could end the loop, so batching never evaluates past the stopping point.
+"""
+
+from __future__ import annotations
+
+from adademo_lerobot.ledger import TaskRoundRecord
+from adademo_lerobot.strategies.base import RoundContext
+from adademo_lerobot.suites.base import derive_seed
+
+
+def expansion_state_seed(seed: int, round_index: int, task: str, k: int) -> int:
+    """The k-th initial state the loop samples for `task` in a round (line 8)."""
+    return derive_seed(seed, "expand", round_index, task, k)
+
+
+def collect_on_failed_states(ctx: RoundContext, task: str, record: TaskRoundRecord) -> TaskRoundRecord:
+    E, CAP = ctx.target_successes, ctx.max_demos_per_task
+    c, k = 0, 0  # successes so far, initial states sampled so far
+    while c < E and record.demos_added < CAP and k < ctx.max_eval_episodes_per_task:
+        batch_size = min(ctx.evaluator.batch_size, E - c, CAP - record.demos_added, ctx.max_eval_episodes_per_task - k)
+        seeds = [expansion_state_seed(ctx.seed, ctx.round_index, task, k + j) for j in range(batch_size)]
+        for outcome in ctx.evaluate(task, seeds):  # line 9: evaluate pi on s
+            k += 1
+            record.eval_episodes += 1
+            if not outcome.success:  # line 10: pi failed on s
+                record.failures += 1
+                ctx.collect_demo(task, outcome.seed, record)  # lines 11-12: tau = G(s); D_i^k += tau
+            else:
+                c += 1  # line 14
+                record.successes += 1
+            ctx.progress(task, record)
+    record.cap_hit = record.demos_added >= CAP
+    record.eval_bound_hit = c < E and not record.cap_hit
+    return record

@@ -1,0 +1,15 @@
+"""The paper's Uniform baseline: N new demos per task from fresh random initial states, no evaluation."""
+
+from adademo_lerobot.ledger import TaskRoundRecord
+from adademo_lerobot.strategies.base import RoundContext
+
+
+class UniformStrategy:
+    name = "uniform"
+    needs_policy = False
+
+    def expand_task(self, ctx: RoundContext, task: str) -> TaskRoundRecord:
+        record = ctx.new_record(task, self.name)
+        record.target_successes = record.max_demos_per_task = None
+        ctx.collect_from_fresh_states(task, ctx.demos_per_task, record)
+        return record
