@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.base import (
     SuiteConfig,
@@ -36,6 +37,7 @@ RAW_OBS_DIM = 39
 PROPRIO_DIM = 4  # hand xyz + gripper opening: the robot's own state
 ACTION_DIM = 4
 FPS = 80
+RENDER_SIZE = 256  # frames for videos of state-only envs
 PRISTINE_MODEL_FIELDS = ("body_pos", "body_quat", "site_pos", "site_quat")  # MetaWorld: timestep 0.0025 s x frame_skip 5
 
 
@@ -43,14 +45,6 @@ PRISTINE_MODEL_FIELDS = ("body_pos", "body_quat", "site_pos", "site_quat")  # Me
 @dataclass
 class MetaWorldSuiteConfig(SuiteConfig):
     camera: str = "corner2"
-
-
-def choose_gl_backend() -> None:
-    """EGL needs a GPU; without one OSMesa renders (apt-get install libosmesa6). An explicit MUJOCO_GL wins."""
-    if "MUJOCO_GL" not in os.environ:
-        backend = "egl" if os.path.exists("/dev/nvidia0") or os.path.exists("/dev/dri/renderD128") else "osmesa"
-        os.environ["MUJOCO_GL"] = backend
-        os.environ.setdefault("PYOPENGL_PLATFORM", backend)
 
 
 def all_task_names() -> list[str]:
@@ -86,10 +80,9 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     # Tasks move bodies/sites of the *model* during reset (e.g. door-open moves the door), so a reset
     # depends on the previous layout. Keep the pristine values to make every restore equal a fresh env's.
     env._adademo_pristine_model = {name: getattr(env.model, name).copy() for name in PRISTINE_MODEL_FIELDS}
-    if render:
-        env.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
-        if camera == "corner2":
-            env.model.cam_pos[2] = [0.75, 0.075, 0.7]  # same corner2 placement as LeRobot's MetaWorld env
+    env.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
+    if camera == "corner2":
+        env.model.cam_pos[2] = [0.75, 0.075, 0.7]  # same corner2 placement as LeRobot's MetaWorld env
     return env
 
 
@@ -148,6 +141,7 @@ class MetaWorldTaskEnv(gym.Env):
         self.initial_state: np.ndarray | None = None
         self._steps = 0
         self._succeeded = False
+        self._renderer = None
         obs_spaces = {
             "agent_pos": spaces.Box(-np.inf, np.inf, (PROPRIO_DIM,), np.float64),
             "environment_state": spaces.Box(-np.inf, np.inf, (RAW_OBS_DIM + len(self._onehot),), np.float64),
@@ -199,9 +193,20 @@ class MetaWorldTaskEnv(gym.Env):
         return self._observation(raw), float(reward), terminated, truncated, info
 
     def render(self):
-        return self._raw.render()
+        """An RGB frame for videos (e.g. `lerobot-eval`), also for state-only envs (rendered on demand)."""
+        if self._pixels:
+            image = self._raw.render()
+        else:
+            if self._renderer is None:
+                choose_gl_backend()
+                self._renderer = mujoco.Renderer(self._raw.model, RENDER_SIZE, RENDER_SIZE)
+            self._renderer.update_scene(self._raw.data, camera=self._camera)
+            image = self._renderer.render()
+        return np.ascontiguousarray(np.flip(image, (0, 1)) if self._camera == "corner2" else image)
 
     def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
         self._raw.close()
 
 
