@@ -35,9 +35,7 @@ case "${1:-}" in
     ;;
   quickstart)
     shift
-    exec "$VENV/bin/adademo-collect" \
-      --suite.tasks=reach-v3,push-v3,pick-place-v3,peg-insert-side-v3 --episodes_per_task=10 \
-      --dataset.repo_id=local/quickstart --dataset.root=outputs/quickstart/dataset --resume=true "$@"
+    exec "$VENV/bin/adademo-run" --config_path=recipes/quickstart.yaml --run_dir=outputs/quickstart "$@"
     ;;
   *)
     echo "usage: bash setup.sh test|quickstart [extra flags]" >&2

@@ -58,6 +58,8 @@ class AdaDemoTrainConfig(TrainPipelineConfig):
             raise AdaDemoError("--output_dir is required")
         self.output_dir = Path(self.output_dir)
         policy_path = parser.get_path_arg("policy")
+        if policy_path is None and self.policy is not None and self.policy.pretrained_path is not None:
+            policy_path = str(self.policy.pretrained_path)  # set programmatically (adademo-run fine-tuning)
         if self.resume:
             last = find_last_checkpoint(self.output_dir)
             if last is None:

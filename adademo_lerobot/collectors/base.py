@@ -132,6 +132,10 @@ def make_collector(config: CollectorConfig, suite: TaskSuite) -> ExpertCollector
             from adademo_lerobot.collectors.metaworld_scripted import MetaWorldScriptedExpert
 
             return MetaWorldScriptedExpert(suite, config)
+        if suite.name == "fetch":
+            from adademo_lerobot.collectors.fetch_scripted import FetchScriptedExpert
+
+            return FetchScriptedExpert(suite, config)
         raise AdaDemoError(f"no scripted expert for suite {suite.name!r}")
     raise AdaDemoError(f"unknown collector type {config.type!r}")
 
@@ -139,4 +143,4 @@ def make_collector(config: CollectorConfig, suite: TaskSuite) -> ExpertCollector
 @CollectorConfig.register_subclass("scripted")
 @dataclass
 class ScriptedCollectorConfig(CollectorConfig):
-    """The suite's built-in scripted experts (MetaWorld: `metaworld.policies`)."""
+    """The suite's built-in scripted experts (MetaWorld: `metaworld.policies`; Fetch: `fetch_scripted`)."""

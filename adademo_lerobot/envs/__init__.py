@@ -42,7 +42,8 @@ class AdaDemoEnv(EnvConfig):
     tasks: str = ""
     obs_type: str = "state"
     image_size: int = 128
-    max_episode_steps: int = 300
+    # Default: the suite's own step limit.
+    max_episode_steps: int | None = None
     fps: int = 80
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
@@ -50,8 +51,11 @@ class AdaDemoEnv(EnvConfig):
     def suite_dict(self) -> dict:
         if self.dataset_root:
             return json.loads((Path(self.dataset_root) / "meta" / "adademo" / "suite.json").read_text())
-        return {"type": self.suite_type, "tasks": self.tasks or (self.task or ""), "obs_type": self.obs_type,
-                "image_size": self.image_size, "max_episode_steps": self.max_episode_steps}
+        suite = {"type": self.suite_type, "tasks": self.tasks or (self.task or ""), "obs_type": self.obs_type,
+                 "image_size": self.image_size}
+        if self.max_episode_steps is not None:
+            suite["max_episode_steps"] = self.max_episode_steps
+        return suite
 
     def __post_init__(self):
         from adademo_lerobot.suites.base import SuiteConfig, make_suite
@@ -59,6 +63,8 @@ class AdaDemoEnv(EnvConfig):
         suite = make_suite(SuiteConfig.from_dict(self.suite_dict()))
         if self.task is None:
             self.task = suite.tasks[0]
+        elif self.task not in suite.tasks:  # a short name (e.g. `push` for FetchPush-v4): the suite resolves it
+            self.task = make_suite(SuiteConfig.from_dict({**self.suite_dict(), "tasks": self.task})).tasks[0]
         self.fps = suite.fps
         self.features = {
             "action": PolicyFeature(type=FeatureType.ACTION, shape=(suite.action_dim,)),

@@ -133,4 +133,12 @@ def make_suite(config: SuiteConfig) -> TaskSuite:
         from adademo_lerobot.suites.metaworld import MetaWorldSuite
 
         return MetaWorldSuite(config)
+    elif config.type == "fetch":
+        from adademo_lerobot.suites.fetch import FetchSuite
+
+        return FetchSuite(config)
+    elif config.type == "adroit":
+        from adademo_lerobot.suites.adroit import AdroitSuite
+
+        return AdroitSuite(config)
     raise AdaDemoError(f"no suite implementation for type {config.type!r}")

@@ -1,0 +1,190 @@
+"""`adademo-report`: the paper's tables and figure for one run or several (`--compare`).
+
+- per-task success and demos per round (Tables I/II and the appendix tables),
+- average success vs average demos per task, one curve per run (Fig. 1),
+- demo allocation per task per round, and the evaluation cost from the ledger.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from adademo_lerobot.dataset.store import read_episode_metadata  # noqa: E402
+from adademo_lerobot.errors import AdaDemoError  # noqa: E402
+from adademo_lerobot.ledger import read_ledger  # noqa: E402
+
+
+@dataclass
+class RunResults:
+    name: str
+    label: str
+    tasks: list[str]
+    success: pd.DataFrame  # index task (+ "average"), columns round -> success rate
+    demos: pd.DataFrame  # index task, columns round -> cumulative demos after that round
+    ledger: pd.DataFrame
+
+
+def load_run(run_dir: Path) -> RunResults:
+    run_dir = Path(run_dir)
+    state_path = run_dir / "run_state.json"
+    if not state_path.exists():
+        raise AdaDemoError(f"{run_dir} is not an adademo-run folder (no run_state.json)")
+    settings = json.loads(state_path.read_text())["settings"]
+    tasks = settings["suite"]["tasks"].split(",")
+    success = {}
+    for summary in sorted((run_dir / "eval").glob("round-*/eval_summary.json")):
+        data = json.loads(summary.read_text())
+        success[data["round"]] = {row["task"]: row["success_rate"] for row in data["per_task"]}
+    if not success:
+        raise AdaDemoError(f"{run_dir} has no evaluation results yet (eval/round-*/eval_summary.json)")
+    eps = read_episode_metadata(run_dir / "dataset")
+    rounds = sorted(success)
+    demos = pd.DataFrame({r: [int(((eps.task == t) & (eps["adademo/round"] <= r)).sum()) for t in tasks]
+                          for r in rounds}, index=tasks)
+    label = f"{settings['strategy']} + {settings['sampler']} sampler"
+    return RunResults(run_dir.name, label, tasks, pd.DataFrame(success).loc[tasks + ["average"], rounds], demos,
+                      pd.DataFrame(read_ledger(run_dir / "dataset")))
+
+
+def _pct(x: float) -> str:
+    return "-" if pd.isna(x) else f"{100 * x:.0f}"
+
+
+def markdown_tables(run: RunResults) -> str:
+    rounds = list(run.success.columns)
+    head = "| task | " + " | ".join(f"round {r}: SR % (demos)" for r in rounds) + " |"
+    lines = [f"### {run.name} — {run.label}", "", head, "|" + " --- |" * (len(rounds) + 1)]
+    for t in run.tasks:
+        lines.append(f"| {t} | " + " | ".join(f"{_pct(run.success.loc[t, r])} ({run.demos.loc[t, r]})" for r in rounds) + " |")
+    lines.append("| **average** | " + " | ".join(
+        f"**{_pct(run.success.loc['average', r])}** ({run.demos[r].mean():.1f})" for r in rounds) + " |")
+    if len(run.ledger):
+        lines += ["", "Expansion rounds (from the ledger):", "",
+                  "| round | strategy | demos added | eval episodes | eval env steps | collection env steps | expert failures | tasks at CAP |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for r, g in run.ledger.groupby("round"):
+            lines.append(f"| {r} | {g.strategy.iloc[0]} | {g.demos_added.sum()} | {g.eval_episodes.sum()} | "
+                         f"{g.eval_env_steps.sum()} | {g.collection_env_steps.sum()} | {g.expert_failures.sum()} | "
+                         f"{int(g.cap_hit.sum())} |")
+    return "\n".join(lines)
+
+
+def plot_success_vs_demos(runs: list[RunResults], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for run in runs:
+        x = [run.demos[r].mean() for r in run.success.columns]
+        y = [100 * run.success.loc["average", r] for r in run.success.columns]
+        ax.plot(x, y, marker="o", label=f"{run.name} ({run.label})")
+    ax.set_xlabel("average demos per task")
+    ax.set_ylabel("average success rate (%)")
+    ax.set_title("Success vs demonstrations (paper Fig. 1)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_allocation(run: RunResults, path: Path) -> None:
+    rounds = list(run.demos.columns)
+    new = run.demos.diff(axis=1)
+    new[rounds[0]] = run.demos[rounds[0]]
+    new = new.astype(int)
+    fig, ax = plt.subplots(figsize=(max(6, len(run.tasks) * 0.9), 4))
+    bottom = pd.Series(0, index=run.tasks)
+    for r in rounds:
+        ax.bar(run.tasks, new[r], bottom=bottom, label="initial" if r == 0 else f"round {r}")
+        bottom += new[r]
+    ax.set_ylabel("demonstrations")
+    ax.set_title(f"Demo allocation per task — {run.name}")
+    ax.tick_params(axis="x", rotation=30, labelsize=8)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_per_task_success(run: RunResults, path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(max(6, len(run.tasks) * 0.9), 4))
+    rounds = list(run.success.columns)
+    width = 0.8 / len(rounds)
+    for k, r in enumerate(rounds):
+        ax.bar([i + k * width for i in range(len(run.tasks))], 100 * run.success.loc[run.tasks, r], width,
+               label=f"round {r}")
+    ax.set_xticks([i + 0.4 - width / 2 for i in range(len(run.tasks))], run.tasks, rotation=30, fontsize=8)
+    ax.set_ylabel("success rate (%)")
+    ax.set_ylim(0, 105)
+    ax.set_title(f"Per-task success per round — {run.name}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_eval_cost(runs: list[RunResults], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(6, 4))
+    labels, evals, collects = [], [], []
+    for run in runs:
+        for r, g in run.ledger.groupby("round") if len(run.ledger) else []:
+            labels.append(f"{run.name}\nr{r}")
+            evals.append(g.eval_env_steps.sum())
+            collects.append(g.collection_env_steps.sum())
+    ax.bar(labels, evals, label="evaluation env steps")
+    ax.bar(labels, collects, bottom=evals, label="expert collection env steps")
+    ax.set_ylabel("env steps")
+    ax.set_title("Cost of each expansion round")
+    ax.tick_params(axis="x", labelsize=7)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_report(run_dirs: list[Path], out_dir: Path) -> Path:
+    runs = [load_run(Path(d)) for d in run_dirs]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plot_success_vs_demos(runs, out_dir / "success_vs_demos.png")
+    plot_eval_cost(runs, out_dir / "eval_cost.png")
+    sections = ["# AdaDemo report", "", "![success vs demos](success_vs_demos.png)", ""]
+    if len(runs) > 1:
+        sections += ["| run | strategy | final avg SR % | avg demos per task |", "| --- | --- | --- | --- |"]
+        for run in runs:
+            last = run.success.columns[-1]
+            sections.append(f"| {run.name} | {run.label} | {_pct(run.success.loc['average', last])} | "
+                            f"{run.demos[last].mean():.1f} |")
+        sections.append("")
+    for run in runs:
+        plot_allocation(run, out_dir / f"allocation_{run.name}.png")
+        plot_per_task_success(run, out_dir / f"success_{run.name}.png")
+        sections += [markdown_tables(run), "", f"![allocation](allocation_{run.name}.png) "
+                     f"![per-task success](success_{run.name}.png)", ""]
+    sections += ["## Evaluation cost", "", "![evaluation cost](eval_cost.png)", ""]
+    path = out_dir / "report.md"
+    path.write_text("\n".join(sections))
+    return path
+
+
+@dataclass
+class ReportConfig:
+    run_dir: str | None = None
+    # More run folders to compare against (e.g. the uniform and ablation arms).
+    compare: list[str] = field(default_factory=list)
+    output_dir: str | None = None
+
+
+def run_report(cfg: ReportConfig) -> Path:
+    if cfg.run_dir is None:
+        raise AdaDemoError("--run_dir is required")
+    out = Path(cfg.output_dir) if cfg.output_dir else Path(cfg.run_dir) / "report"
+    path = write_report([Path(cfg.run_dir), *map(Path, cfg.compare)], out)
+    print(f"report: {path}")
+    return path

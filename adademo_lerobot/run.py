@@ -1,0 +1,277 @@
+"""`adademo-run`: the whole of Algorithm 1 as one resumable command driven by a recipe.
+
+    collect D_0 (E0 demos per task) -> train pi_0 -> evaluate on the fixed evaluation set
+    for round i = 1..R:  expand (strategy, E_i, CAP_i) -> retrain (from scratch or fine-tune) -> evaluate
+    report
+
+Every stage is itself resumable (collection, training checkpoints, the expansion journal) and the run marks
+finished stages in `RUN_DIR/run_state.json`, so rerunning the same command after an interruption continues
+where it stopped without redoing finished stages. The fixed evaluation set (seeds under the "eval" key) is the
+same for every round and every strategy and is never used for expansion.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import draccus
+import pandas as pd
+import torch
+from lerobot.configs.default import DatasetConfig
+from lerobot.configs.policies import PreTrainedConfig
+
+from adademo_lerobot.collect import collect_fresh, format_collection_table
+from adademo_lerobot.collectors.base import CollectorConfig, make_collector
+from adademo_lerobot.configs import EvalBatchArgs, ExpandConfig, PolicyPathArgs, DatasetArgs, default_collector, default_suite
+from adademo_lerobot.dataset.store import DemoDataset, atomic_write_text, read_episode_metadata
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.evaluation import (
+    BatchedEvaluator, evaluation_seeds, format_success_table, load_policy, success_table, write_eval_outputs,
+)
+from adademo_lerobot.expand import run_expand
+from adademo_lerobot.ledger import read_ledger
+from adademo_lerobot.strategies import STRATEGIES
+from adademo_lerobot.suites.base import SuiteConfig, make_suite
+from adademo_lerobot.train import AdaDemoTrainConfig, find_last_checkpoint, train
+
+STEPS_SCHEDULES = ("constant", "proportional")
+
+
+@dataclass
+class RunTrainArgs:
+    policy: PreTrainedConfig | None = None
+    sampler: str = "trajectory"
+    min_task_weight: float = 0.0
+    batch_size: int = 32
+    # Steps of the round-0 training.
+    steps: int = 2000
+    # Later rounds: `scratch` retrains from scratch, `finetune` continues from the previous round's checkpoint.
+    mode: str = "scratch"
+    # scratch: `constant` steps, or `proportional` to the number of demonstrations (same passes over them).
+    steps_schedule: str = "proportional"
+    max_steps: int = 20000
+    # finetune: steps per round.
+    finetune_steps: int = 1000
+    save_freq: int = 1000
+    torch_threads: int = 2
+    seed: int = 1000
+
+
+@dataclass
+class RunEvalArgs:
+    # The fixed evaluation set: this many initial states per task, the same every round and for every strategy.
+    episodes_per_task: int = 20
+    seed: int = 100
+    batch_size: int = 10
+
+
+@dataclass
+class RunConfig:
+    run_dir: str | None = None
+    suite: SuiteConfig = field(default_factory=default_suite)
+    collector: CollectorConfig = field(default_factory=default_collector)
+    # E0: demos per task in the initial dataset.
+    initial_demos_per_task: int = 10
+    strategy: str = "adademo"
+    rounds: int = 2
+    # Per round i = 1..R (the last value repeats if the list is shorter): E_i, CAP_i and Uniform's N_i.
+    target_successes: list[int] = field(default_factory=lambda: [10])
+    max_demos_per_task: list[int] = field(default_factory=lambda: [50])
+    demos_per_task: list[int] = field(default_factory=lambda: [10])
+    plan_episodes_per_task: int = 20
+    seed: int = 0
+    train: RunTrainArgs = field(default_factory=RunTrainArgs)
+    eval: RunEvalArgs = field(default_factory=RunEvalArgs)
+    device: str = "cpu"
+    commit_every: int = 10
+    # Push the final dataset to the hub as hub_repo_id (token from HF_TOKEN or your login).
+    push_to_hub: bool = False
+    hub_repo_id: str | None = None
+    hub_private: bool = False
+
+
+def per_round(values: list[int], i: int) -> int:
+    return values[min(i, len(values)) - 1]
+
+
+def validate(cfg: RunConfig) -> None:
+    if cfg.run_dir is None:
+        raise AdaDemoError("--run_dir is required (everything of the run goes there)")
+    if cfg.strategy not in STRATEGIES:
+        raise AdaDemoError(f"unknown --strategy={cfg.strategy!r}; choose one of {', '.join(STRATEGIES)}")
+    if cfg.rounds < 0 or cfg.initial_demos_per_task < 1:
+        raise AdaDemoError("--rounds must be >= 0 and --initial_demos_per_task >= 1")
+    for name in ("target_successes", "max_demos_per_task", "demos_per_task"):
+        values = getattr(cfg, name)
+        if not values or min(values) < 1:
+            raise AdaDemoError(f"--{name} needs one or more values >= 1 (one per round), got {values}")
+    if cfg.train.policy is None:
+        raise AdaDemoError("the recipe needs train.policy (e.g. --train.policy.type=act)")
+    if cfg.train.mode not in ("scratch", "finetune"):
+        raise AdaDemoError(f"--train.mode must be scratch or finetune, got {cfg.train.mode!r}")
+    if cfg.train.steps_schedule not in STEPS_SCHEDULES:
+        raise AdaDemoError(f"--train.steps_schedule must be one of {', '.join(STEPS_SCHEDULES)}")
+    if cfg.push_to_hub and not cfg.hub_repo_id:
+        raise AdaDemoError("--push_to_hub=true needs --hub_repo_id=USER/NAME")
+
+
+class RunState:
+    """Finished stages of a run, plus the settings that define it (a rerun must keep them)."""
+
+    def __init__(self, run_dir: Path, settings: dict):
+        self.path = run_dir / "run_state.json"
+        if self.path.exists():
+            state = json.loads(self.path.read_text())
+            diffs = sorted(k for k in set(settings) | set(state["settings"])
+                           if settings.get(k) != state["settings"].get(k) and k in FIXED_SETTINGS)
+            if diffs:
+                raise AdaDemoError(f"{run_dir} was started with other settings ({', '.join(diffs)}); "
+                                   "rerun with the same recipe and flags, or use another --run_dir")
+            self.done = state["done"]
+            settings = {**state["settings"], **settings}
+        else:
+            self.done = {}
+        self.settings = settings
+        self._save()
+
+    def _save(self) -> None:
+        atomic_write_text(self.path, json.dumps({"settings": self.settings, "done": self.done}, indent=2))
+
+    def stage(self, name: str, fn):
+        """Run `fn` unless the stage already finished; remember its (JSON) result."""
+        if name in self.done:
+            print(f"[done] {name}")
+            return self.done[name]
+        print(f"[run]  {name}")
+        start = time.perf_counter()
+        result = fn()
+        self.done[name] = {"result": result, "seconds": round(time.perf_counter() - start, 1)}
+        self._save()
+        return self.done[name]
+
+
+# Settings whose change would make a resumed run a different experiment.
+FIXED_SETTINGS = ("suite", "strategy", "initial_demos_per_task", "seed", "eval", "target_successes",
+                  "max_demos_per_task", "demos_per_task", "sampler", "policy_type")
+
+
+def run(cfg: RunConfig) -> Path:
+    validate(cfg)
+    run_dir = Path(cfg.run_dir)
+    suite = make_suite(cfg.suite)
+    collector = make_collector(cfg.collector, suite)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    settings = {
+        "suite": suite.config.to_dict(), "strategy": cfg.strategy, "rounds": cfg.rounds,
+        "initial_demos_per_task": cfg.initial_demos_per_task, "seed": cfg.seed,
+        "eval": {"episodes_per_task": cfg.eval.episodes_per_task, "seed": cfg.eval.seed},
+        "target_successes": cfg.target_successes, "max_demos_per_task": cfg.max_demos_per_task,
+        "demos_per_task": cfg.demos_per_task, "sampler": cfg.train.sampler, "policy_type": cfg.train.policy.type,
+        "train_mode": cfg.train.mode, "min_task_weight": cfg.train.min_task_weight,
+    }
+    state = RunState(run_dir, settings)
+    dataset_root = run_dir / "dataset"
+    repo_id = f"local/{run_dir.name}"
+
+    def collect_initial():
+        if not (dataset_root / "meta" / "info.json").exists():
+            DemoDataset.check_new_root(dataset_root)
+            dataset = DemoDataset(repo_id, dataset_root, suite.config)
+        else:
+            dataset = DemoDataset.open(repo_id, dataset_root)
+        records = collect_fresh(suite, collector, dataset, {t: cfg.initial_demos_per_task for t in suite.tasks},
+                                cfg.seed, round_index=0, source="initial", commit_every=cfg.commit_every,
+                                desc="initial demos")
+        print(format_collection_table(records))
+        return {t: r.demos_added for t, r in records.items()}
+
+    state.stage("collect", collect_initial)
+    checkpoint = Path(state.stage("train-0", lambda: train_round(cfg, run_dir, dataset_root, repo_id, 0, None))["result"])
+    state.stage("eval-0", lambda: evaluate_round(cfg, suite, run_dir, checkpoint, 0))
+    for i in range(1, cfg.rounds + 1):
+        state.stage(f"expand-{i}", lambda: expand_round(cfg, dataset_root, repo_id, checkpoint, i))
+        checkpoint = Path(state.stage(
+            f"train-{i}", lambda: train_round(cfg, run_dir, dataset_root, repo_id, i, checkpoint))["result"])
+        state.stage(f"eval-{i}", lambda: evaluate_round(cfg, suite, run_dir, checkpoint, i))
+
+    from adademo_lerobot.report import write_report
+
+    report = write_report([run_dir], run_dir / "report")
+    if cfg.push_to_hub:
+        state.stage("push", lambda: push(cfg, dataset_root, repo_id))
+    print(f"run complete: {run_dir} (report: {report})")
+    return run_dir
+
+
+def train_round(cfg: RunConfig, run_dir: Path, dataset_root: Path, repo_id: str, i: int, previous: Path | None) -> str:
+    out = run_dir / "train" / f"round-{i}"
+    resume = find_last_checkpoint(out) is not None
+    if out.exists() and not resume:
+        shutil.rmtree(out)  # killed before its first checkpoint: nothing to keep
+    policy = copy.deepcopy(cfg.train.policy)
+    policy.device = cfg.device
+    steps = cfg.train.steps
+    if i > 0 and cfg.train.mode == "finetune":
+        policy = PreTrainedConfig.from_pretrained(previous)
+        policy.pretrained_path = previous
+        policy.device = cfg.device
+        steps = cfg.train.finetune_steps
+    elif i > 0 and cfg.train.steps_schedule == "proportional":
+        eps = read_episode_metadata(dataset_root)
+        initial = int((eps["adademo/round"] == 0).sum())
+        steps = min(cfg.train.max_steps, round(cfg.train.steps * len(eps) / max(initial, 1)))
+    train_cfg = AdaDemoTrainConfig(
+        dataset=DatasetConfig(repo_id=repo_id, root=str(dataset_root)), policy=policy, output_dir=out,
+        resume=resume, seed=cfg.train.seed, batch_size=cfg.train.batch_size, steps=steps,
+        save_freq=min(cfg.train.save_freq, steps), sampler=cfg.train.sampler,
+        min_task_weight=cfg.train.min_task_weight, torch_threads=cfg.train.torch_threads,
+    )
+    return str(train(train_cfg).resolve())
+
+
+def evaluate_round(cfg: RunConfig, suite, run_dir: Path, checkpoint: Path, i: int) -> dict:
+    torch.set_num_threads(cfg.train.torch_threads)
+    loaded = load_policy(checkpoint, cfg.device)
+    evaluator = BatchedEvaluator(suite, loaded, cfg.eval.batch_size)
+    start = time.perf_counter()
+    records = []
+    for task in suite.tasks:
+        records += evaluator.run(task, evaluation_seeds(cfg.eval.seed, task, cfg.eval.episodes_per_task))
+    evaluator.close()
+    table = success_table(records, suite.tasks)
+    print(f"round {i} evaluation (fixed set, {cfg.eval.episodes_per_task} episodes per task):")
+    print(format_success_table(table))
+    out = run_dir / "eval" / f"round-{i:03d}"
+    write_eval_outputs(out, records, table, {"round": i, "policy_path": str(checkpoint), "env_steps": evaluator.env_steps,
+                                             "wall_seconds": time.perf_counter() - start})
+    return {"average_success": float(table.success_rate.iloc[-1])}
+
+
+def expand_round(cfg: RunConfig, dataset_root: Path, repo_id: str, checkpoint: Path, i: int) -> dict:
+    if any(r["round"] == i for r in read_ledger(dataset_root)):
+        return {"note": "round already in the ledger"}  # killed after the round finished
+    expand_cfg = ExpandConfig(
+        dataset=DatasetArgs(repo_id=repo_id, root=str(dataset_root)), policy=PolicyPathArgs(path=str(checkpoint)),
+        strategy=cfg.strategy, target_successes=per_round(cfg.target_successes, i),
+        max_demos_per_task=per_round(cfg.max_demos_per_task, i), demos_per_task=per_round(cfg.demos_per_task, i),
+        plan_episodes_per_task=cfg.plan_episodes_per_task, seed=cfg.seed, collector=cfg.collector,
+        eval=EvalBatchArgs(batch_size=cfg.eval.batch_size), device=cfg.device,
+        torch_threads=cfg.train.torch_threads, commit_every=cfg.commit_every,
+    )
+    records = run_expand(expand_cfg)
+    return {"demos_added": {r.task: r.demos_added for r in records}}
+
+
+def push(cfg: RunConfig, dataset_root: Path, repo_id: str) -> dict:
+    from adademo_lerobot.hub import PushConfig, run_push
+
+    push_cfg = PushConfig()
+    push_cfg.dataset.root, push_cfg.dataset.repo_id = str(dataset_root), repo_id
+    push_cfg.repo_id, push_cfg.private = cfg.hub_repo_id, cfg.hub_private
+    run_push(push_cfg)
+    return {"repo_id": cfg.hub_repo_id}

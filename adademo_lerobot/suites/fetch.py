@@ -1,0 +1,307 @@
+"""Gymnasium-robotics Fetch (v4) as a task suite: Reach, Push, PickAndPlace, Slide with exact initial states.
+
+A Fetch initial state is what the env randomizes at reset: the object's free-joint pose (`object0:joint`, 7
+values: xyz + quaternion wxyz) followed by the 3-D goal; Reach has no object, so its state is the goal only.
+Fetch's `reset` ignores options, so a state is restored by hand: the env's own `reset()` first (it clears
+`MjData` with `mj_resetData` and puts back the robot's initial qpos/qvel, so nothing of the env's history
+survives), then the object pose and the goal are overwritten, `mj_forward` runs and the observation is
+recomputed. Sampling lets the env draw the state with `reset(seed=seed)` and captures it.
+
+Observations use one 25-D layout for every task (the object tasks' own `observation`; Reach's 10 values sit at
+the same robot indices, its object entries are zero), so a multi-task policy sees the same meaning per index:
+
+    0:3   grip xyz              3:6   object xyz          6:9   object - grip
+    9:11  finger joints         11:14 object euler         14:17 object velp (relative to grip)
+    17:20 object velr           20:23 grip velp            23:25 finger joint velocities
+    (velocities are multiplied by dt = 0.04 s, as in the env)
+
+`agent_pos` (state_dim 10) is the robot's own part: indices 0:3, 9:11, 20:23, 23:25 (grip position, finger
+joints, grip velocity, finger velocities). `environment_state` = 25-D observation + desired goal (3) + task
+one-hot.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import warnings
+from dataclasses import dataclass
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from adademo_lerobot import choose_gl_backend
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.suites.base import (
+    SuiteConfig,
+    check_obs_type,
+    check_task_names,
+    onehot,
+    split_task_list,
+)
+
+# Canonical task names (stored in config.tasks, one-hot order follows the requested order) and short aliases.
+TASKS = ["FetchReach-v4", "FetchPush-v4", "FetchPickAndPlace-v4", "FetchSlide-v4"]
+SHORT_NAMES = {
+    "reach": "FetchReach-v4",
+    "push": "FetchPush-v4",
+    "pick_and_place": "FetchPickAndPlace-v4",
+    "slide": "FetchSlide-v4",
+}
+DESCRIPTIONS = {
+    "FetchReach-v4": "Move the gripper to the target position.",
+    "FetchPush-v4": "Push the block to the target position on the table.",
+    "FetchPickAndPlace-v4": "Pick up the block and place it at the target position (on the table or in the air).",
+    "FetchSlide-v4": "Hit the puck so that it slides to the target position on the table.",
+}
+OBS_DIM = 25  # the object tasks' `observation`; Reach is scattered into the same layout
+GOAL_DIM = 3
+OBJECT_QPOS_DIM = 7
+# The robot's own part of the 25-D observation: grip xyz, finger joints, grip velocity, finger velocities.
+PROPRIO_INDICES = np.array([0, 1, 2, 9, 10, 20, 21, 22, 23, 24])
+PROPRIO_DIM = len(PROPRIO_INDICES)
+REACH_OBS_DIM = 10  # Reach's own observation is exactly the proprioception, in PROPRIO_INDICES order
+ACTION_DIM = 4
+FPS = 25  # Fetch: timestep 0.002 s x 20 substeps = dt 0.04 s
+DEFAULT_CAMERA = "default"
+RENDER_SIZE = 256  # frames for videos of state-only envs
+
+
+@SuiteConfig.register_subclass("fetch")
+@dataclass
+class FetchSuiteConfig(SuiteConfig):
+    # The Fetch envs' own TimeLimit (50 steps at 25 Hz).
+    max_episode_steps: int = 50
+    # `default`: the env's own free camera (what `env.render()` shows); or a camera of the model, e.g.
+    # `external_camera_0`, `head_camera_rgb`.
+    camera: str = DEFAULT_CAMERA
+
+
+def canonical_task_names(tasks: list[str]) -> list[str]:
+    """Short names (`push`) and the group `all` to gymnasium ids (`FetchPush-v4`); unknown names pass through."""
+    out: list[str] = []
+    for task in tasks:
+        if task.lower() == "all":
+            out.extend(TASKS)
+        else:
+            out.append(SHORT_NAMES.get(task.lower(), task))
+    return out
+
+
+def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera: str = DEFAULT_CAMERA):
+    """The unwrapped gymnasium-robotics env (no TimeLimit: the task env truncates itself).
+
+    With `render` the env renders `image_size` RGB frames from `camera` (its OpenGL context is made on the first
+    frame only; rendering does not touch the simulation state).
+    """
+    with warnings.catch_warnings(), contextlib.redirect_stderr(io.StringIO()):
+        # On import gymnasium-robotics 1.4.2 prints a notice about Adroit reward versions (not Fetch) to stderr.
+        warnings.simplefilter("ignore")
+        import gymnasium_robotics
+
+        gym.register_envs(gymnasium_robotics)
+        kwargs = dict(render_mode="rgb_array", width=image_size, height=image_size) if render else {}
+        raw = gym.make(task, disable_env_checker=True, **kwargs).unwrapped
+    if render:
+        raw.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
+        if camera != DEFAULT_CAMERA:  # the env's own renderer uses its free camera; swap in a named one
+            if mujoco.mj_name2id(raw.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+                names = [raw.model.camera(i).name for i in range(raw.model.ncam)]
+                raise AdaDemoError(f"--suite.camera={camera!r} is not a Fetch camera; use default or one of {names}")
+            from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+            raw.mujoco_renderer.close()
+            raw.mujoco_renderer = MujocoRenderer(raw.model, raw.data, None, image_size, image_size,
+                                                 camera_name=camera)
+    return raw
+
+
+def state_dim_of(raw_env) -> int:
+    return (OBJECT_QPOS_DIM if raw_env.has_object else 0) + GOAL_DIM
+
+
+def capture_state(raw_env) -> np.ndarray:
+    """The randomized part of the current state: object joint qpos (7, object tasks only) + goal (3)."""
+    parts = []
+    if raw_env.has_object:
+        parts.append(raw_env._utils.get_joint_qpos(raw_env.model, raw_env.data, "object0:joint"))
+    parts.append(raw_env.goal)
+    return np.array(np.concatenate(parts), dtype=np.float64, copy=True)
+
+
+def sample_state(raw_env, seed: int) -> np.ndarray:
+    """Let the env draw its own initial state from `seed` (object away from the gripper, goal in range)."""
+    raw_env.reset(seed=int(seed))
+    return capture_state(raw_env)
+
+
+def restore_state(raw_env, state: np.ndarray) -> dict:
+    """Reset to exactly `state`; returns the env's raw dict observation."""
+    state = np.asarray(state, dtype=np.float64)
+    expected = state_dim_of(raw_env)
+    if state.shape != (expected,):
+        raise AdaDemoError(
+            f"initial state has {state.size} values but this Fetch task needs {expected}; "
+            f"was it recorded for another task?"
+        )
+    # The env's own reset clears MjData (mj_resetData: warm start, mocap, ctrl) and restores the robot's
+    # initial qpos/qvel; its random object pose and goal are then overwritten.
+    raw_env.reset()
+    if raw_env.has_object:
+        raw_env._utils.set_joint_qpos(raw_env.model, raw_env.data, "object0:joint", state[:OBJECT_QPOS_DIM])
+    raw_env.goal = state[-GOAL_DIM:].copy()
+    mujoco.mj_forward(raw_env.model, raw_env.data)
+    return raw_env._get_obs()
+
+
+def full_observation(raw_obs: np.ndarray) -> np.ndarray:
+    """The 25-D layout (Reach's 10-D observation scattered to the robot indices)."""
+    raw_obs = np.asarray(raw_obs, dtype=np.float64)
+    if raw_obs.shape == (OBS_DIM,):
+        return raw_obs.copy()
+    out = np.zeros(OBS_DIM, dtype=np.float64)
+    out[PROPRIO_INDICES] = raw_obs
+    return out
+
+
+class FetchTaskEnv(gym.Env):
+    """One Fetch task with LeRobot-style dict observations and exact initial-state resets.
+
+    Observations: `agent_pos` (10-D proprioception), `environment_state` (25-D observation + goal + task
+    one-hot) and, for `pixels_state`, `pixels` = {camera: HxWx3 uint8}. `info["is_success"]` is the env's own
+    success (object, or gripper for Reach, within 5 cm of the goal); with `terminate_on_success` (evaluation)
+    the episode ends at the first success.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
+
+    def __init__(self, suite: FetchSuite, task: str, terminate_on_success: bool = True):
+        super().__init__()
+        cfg = suite.config
+        self.task = task
+        self.task_description = suite.task_description(task)
+        self.terminate_on_success = terminate_on_success
+        self._max_episode_steps = cfg.max_episode_steps
+        self._onehot = suite.task_onehot(task)
+        self._pixels = cfg.obs_type == "pixels_state"
+        self._camera = cfg.camera
+        # Always able to render: state-only envs render frames on demand for videos (e.g. `lerobot-eval`).
+        self._raw = make_raw_env(task, True, cfg.image_size if self._pixels else RENDER_SIZE, cfg.camera)
+        # Set per sub-env through VectorEnv.set_attr before a batched reset (gymnasium passes one options dict).
+        self.pending_initial_state: np.ndarray | None = None
+        self.initial_state: np.ndarray | None = None
+        self._steps = 0
+        self._succeeded = False
+        obs_spaces = {
+            "agent_pos": spaces.Box(-np.inf, np.inf, (PROPRIO_DIM,), np.float64),
+            "environment_state": spaces.Box(-np.inf, np.inf, (OBS_DIM + GOAL_DIM + len(self._onehot),), np.float64),
+        }
+        if self._pixels:
+            shape = (cfg.image_size, cfg.image_size, 3)
+            obs_spaces["pixels"] = spaces.Dict({self._camera: spaces.Box(0, 255, shape, np.uint8)})
+        self.observation_space = spaces.Dict(obs_spaces)
+        self.action_space = spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
+
+    def _observation(self, raw: dict) -> dict:
+        full = full_observation(raw["observation"])
+        obs = {
+            "agent_pos": full[PROPRIO_INDICES],
+            "environment_state": np.concatenate([full, np.asarray(raw["desired_goal"], np.float64), self._onehot]),
+        }
+        if self._pixels:
+            obs["pixels"] = {self._camera: np.ascontiguousarray(self._raw.render())}
+        return obs
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        state = (options or {}).get("initial_state")
+        if state is None and self.pending_initial_state is not None:
+            state, self.pending_initial_state = self.pending_initial_state, None
+        if state is None:
+            state_seed = seed if seed is not None else int(self.np_random.integers(2**62))
+            state = sample_state(self._raw, state_seed)
+        raw = restore_state(self._raw, state)
+        self.initial_state = np.array(state, dtype=np.float64, copy=True)
+        self._steps = 0
+        self._succeeded = False
+        return self._observation(raw), {"is_success": False}
+
+    def step(self, action):
+        # float32 and clipped: exactly what is stored in the dataset, so stored actions replay exactly.
+        action = np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
+        raw, reward, _, _, raw_info = self._raw.step(action)
+        self._steps += 1
+        success = bool(raw_info.get("is_success", 0.0))
+        self._succeeded |= success
+        terminated = success and self.terminate_on_success
+        truncated = self._steps >= self._max_episode_steps and not terminated
+        info = {"is_success": success, "task": self.task}
+        if terminated or truncated:
+            info["final_info"] = {"is_success": success, "task": self.task}
+        return self._observation(raw), float(reward), terminated, truncated, info
+
+    def render(self):
+        """An RGB frame (image_size with `pixels_state`, else RENDER_SIZE), also for state-only envs."""
+        choose_gl_backend()
+        return np.ascontiguousarray(self._raw.render())
+
+    def close(self):
+        self._raw.close()
+
+
+class FetchSuite:
+    """FetchReach/Push/PickAndPlace/Slide v4 (short names `reach`, `push`, `pick_and_place`, `slide`, or `all`)."""
+
+    name = "fetch"
+    fps = FPS
+    action_dim = ACTION_DIM
+    state_dim = PROPRIO_DIM
+
+    def __init__(self, config: SuiteConfig):
+        if not isinstance(config, FetchSuiteConfig):
+            config = FetchSuiteConfig(**{k: v for k, v in config.to_dict().items() if k != "type"})
+        check_obs_type(config.obs_type)
+        if config.max_episode_steps < 1:
+            raise AdaDemoError(f"--suite.max_episode_steps must be >= 1, got {config.max_episode_steps}")
+        if config.image_size < 16:
+            raise AdaDemoError(f"--suite.image_size must be >= 16 pixels, got {config.image_size}")
+        tasks = canonical_task_names(split_task_list(config.tasks))
+        check_task_names(tasks, TASKS + list(SHORT_NAMES), "fetch")
+        self.config = config
+        self._tasks = tasks
+        self.config.tasks = ",".join(tasks)  # stored canonical, in one-hot order
+        if config.obs_type == "pixels_state":
+            choose_gl_backend()
+        if config.camera != DEFAULT_CAMERA:  # fail now, not when the first env is made mid-collection
+            make_raw_env(tasks[0], True, 16, config.camera).close()
+        self._samplers: dict[str, object] = {}
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(self._tasks)
+
+    @property
+    def env_state_dim(self) -> int:
+        return OBS_DIM + GOAL_DIM + len(self._tasks)
+
+    def make_env(self, task: str, terminate_on_success: bool = True) -> FetchTaskEnv:
+        self._check_task(task)
+        return FetchTaskEnv(self, task, terminate_on_success)
+
+    def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
+        self._check_task(task)
+        if task not in self._samplers:
+            self._samplers[task] = make_raw_env(task)
+        return sample_state(self._samplers[task], seed)
+
+    def task_onehot(self, task: str) -> np.ndarray:
+        return onehot(self._tasks, task)
+
+    def task_description(self, task: str) -> str:
+        return DESCRIPTIONS.get(task, task)
+
+    def _check_task(self, task: str) -> None:
+        if task not in self._tasks:
+            raise AdaDemoError(f"task {task!r} is not in this suite's task list {self._tasks}")

@@ -1,0 +1,67 @@
+"""Shared setup for the benchmark scripts: real datasets and a small trained ACT, made with our own commands."""
+
+from __future__ import annotations
+
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def sh(*args: str) -> subprocess.CompletedProcess:
+    proc = subprocess.run([str(a) for a in args], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{args[0]} failed:\n{proc.stderr[-3000:]}")
+    return proc
+
+
+def collect(root: Path, tasks: str, per_task: int, seed: int = 0) -> Path:
+    sh(BIN / "adademo-collect", f"--suite.tasks={tasks}", f"--episodes_per_task={per_task}",
+       "--dataset.repo_id=local/bench", f"--dataset.root={root}", f"--seed={seed}")
+    return root
+
+
+def train_small_act(dataset: Path, out: Path, steps: int = 50, extra: tuple[str, ...] = ()) -> Path:
+    sh(BIN / "adademo-train", f"--config_path={ROOT / 'policies' / 'act_state_cpu.yaml'}", "--dataset.repo_id=local/bench",
+       f"--dataset.root={dataset}", f"--steps={steps}", f"--save_freq={steps}", f"--output_dir={out}", *extra)
+    return out / "checkpoints" / "last" / "pretrained_model"
+
+
+def machine_line() -> str:
+    return (f"date {time.strftime('%Y-%m-%d')}; machine: {platform.machine()}, 2 CPU cores, "
+            f"Python {platform.python_version()}")
+
+
+def grow_dataset(root: Path, episodes: int, tasks: str = "reach-v3,push-v3", unique: int = 10):
+    """An adademo dataset of `episodes` real scripted demos (`unique` per task collected, then rewritten under
+    new seeds). Returns (DemoDataset, suite, collector, demos)."""
+    import dataclasses
+
+    from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector
+    from adademo_lerobot.dataset.store import DemoDataset
+    from adademo_lerobot.suites import MetaWorldSuiteConfig, make_suite
+    from adademo_lerobot.suites.base import derive_seed
+
+    suite = make_suite(MetaWorldSuiteConfig(tasks=tasks))
+    collector = make_collector(ScriptedCollectorConfig(), suite)
+    demos = []
+    for k in range(unique):
+        for task in suite.tasks:
+            s = derive_seed(0, task, k)
+            demos.append(collector.collect(task, suite.sample_initial_state(task, s), s).demonstration)
+
+    def batch(n: int, offset: int) -> list:
+        return [dataclasses.replace(demos[i % len(demos)], seed=offset + i) for i in range(n)]
+
+    ds = DemoDataset("local/bench", root, suite.config)
+    written = 0
+    while written < episodes:
+        n = min(200, episodes - written)
+        ds.append(suite, batch(n, written), 0, "initial", collector.name)
+        written += n
+    return ds, suite, collector, batch
