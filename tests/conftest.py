@@ -63,3 +63,17 @@ def act_run(reach_push_dataset, tmp_path_factory):
     run_cli("adademo-train", "--dataset.repo_id=local/demo", f"--dataset.root={reach_push_dataset}", *TINY_ACT,
             "--steps=4", "--save_freq=2", f"--output_dir={out}", "--sampler=trajectory", "--min_task_weight=0.3")
     return out
+
+
+@pytest.fixture(scope="session")
+def stock_act_checkpoint(reach_push_dataset, tmp_path_factory) -> Path:
+    """An ACT trained for 2 steps by stock `lerobot-train` on the reach/push dataset."""
+    out = tmp_path_factory.mktemp("stock") / "run"
+    proc = subprocess.run(
+        [str(BIN / "lerobot-train"), "--dataset.repo_id=local/demo", f"--dataset.root={reach_push_dataset}",
+         *TINY_ACT, "--steps=2", "--save_freq=2", f"--output_dir={out}", "--policy.push_to_hub=false",
+         "--num_workers=0", "--eval_freq=0", "--wandb.enable=false"],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return out / "checkpoints" / "last" / "pretrained_model"

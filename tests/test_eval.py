@@ -34,6 +34,14 @@ def test_eval_cli_writes_records_and_success_rates(act_run, reach_push_dataset, 
     assert summary["env_steps"] == int(records.steps.sum())
 
 
+def test_eval_runs_a_stock_lerobot_train_checkpoint(stock_act_checkpoint, reach_push_dataset, tmp_path):
+    out = tmp_path / "stock_eval"
+    run_cli("adademo-eval", f"--policy.path={stock_act_checkpoint}", f"--dataset.root={reach_push_dataset}",
+            "--episodes_per_task=2", "--eval.batch_size=2", f"--output_dir={out}")
+    records = pd.read_parquet(out / "eval_episodes.parquet")
+    assert len(records) == 4 and set(records.task) == {"reach-v3", "push-v3"}
+
+
 def test_batching_does_not_change_outcomes(act_run):
     """Each sub-env starts from its own requested state: batch size 3 and batch size 1 agree episode by episode."""
     suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))

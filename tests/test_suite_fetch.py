@@ -244,3 +244,25 @@ def test_pixels_state_adds_a_camera_image_and_keeps_the_state_exact():
     assert external.make_env("FetchPush-v4").reset(seed=4)[0]["pixels"]["external_camera_0"].shape == (32, 32, 3)
     with pytest.raises(AdaDemoError, match="not a Fetch camera"):
         make_suite(FetchSuiteConfig(tasks="push", obs_type="pixels_state", camera="nope"))
+
+
+def test_one_adademo_expand_round_on_fetch(tmp_path):
+    """The same commands work unchanged on Fetch: collect, train a weak ACT, expand one round."""
+    from conftest import TINY_ACT, run_cli
+
+    from adademo_lerobot.dataset.store import read_episode_metadata
+    from adademo_lerobot.ledger import read_ledger
+
+    root = tmp_path / "fetch"
+    common = ["--dataset.repo_id=local/fetch", f"--dataset.root={root}"]
+    run_cli("adademo-collect", "--suite.type=fetch", "--suite.tasks=reach,push", "--episodes_per_task=2", *common)
+    run_cli("adademo-train", *common, *TINY_ACT, "--steps=2", f"--output_dir={tmp_path / 'train'}")
+    ckpt = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
+    run_cli("adademo-expand", *common, f"--policy.path={ckpt}", "--strategy=adademo", "--target_successes=1",
+            "--max_demos_per_task=2")
+    eps = read_episode_metadata(root)
+    ledger = read_ledger(root)
+    assert sorted(r["task"] for r in ledger) == ["FetchPush-v4", "FetchReach-v4"]
+    for r in ledger:
+        assert r["demos_added"] == int(((eps.task == r["task"]) & (eps["adademo/round"] == 1)).sum()) <= 2
+        assert r["eval_episodes"] == r["successes"] + r["failures"]

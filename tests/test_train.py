@@ -72,17 +72,9 @@ def test_diffusion_trains_and_reloads(reach_push_dataset, tmp_path):
     np.testing.assert_array_equal(first_action(ckpt, reach_push_dataset, 1), first_action(ckpt, reach_push_dataset, 1))
 
 
-def test_fine_tune_from_a_stock_lerobot_train_checkpoint(reach_push_dataset, tmp_path):
-    stock = tmp_path / "stock"
-    proc = subprocess.run(
-        [str(BIN / "lerobot-train"), *data_args(reach_push_dataset), *TINY_ACT, "--steps=2", "--save_freq=2",
-         f"--output_dir={stock}", "--policy.push_to_hub=false", "--num_workers=0", "--eval_freq=0", "--wandb.enable=false"],
-        capture_output=True, text=True, timeout=600,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    stock_ckpt = stock / "checkpoints" / "last" / "pretrained_model"
+def test_fine_tune_from_a_stock_lerobot_train_checkpoint(reach_push_dataset, stock_act_checkpoint, tmp_path):
     out = tmp_path / "finetuned"
-    run_cli("adademo-train", *data_args(reach_push_dataset), f"--policy.path={stock_ckpt}", "--steps=2",
+    run_cli("adademo-train", *data_args(reach_push_dataset), f"--policy.path={stock_act_checkpoint}", "--steps=2",
             "--batch_size=8", f"--output_dir={out}")
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     assert json.loads((ckpt / "config.json").read_text())["dim_model"] == 32
