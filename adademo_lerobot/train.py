@@ -8,7 +8,6 @@ few lines of the training loop that build the DataLoader around our `WeightedFra
 from __future__ import annotations
 
 import json
-import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,6 @@ from adademo_lerobot.dataset.store import load_suite_config, read_episode_metada
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.samplers import WeightedFrameSampler, frame_weights, make_sampling_scheme
 
-log = logging.getLogger(__name__)
 POLICY_TYPES = ("act", "diffusion")
 # Normalization floor: MetaWorld observations have constant dims (padding, unused objects); dividing by a
 # near-zero std turns float noise at evaluation time into huge inputs.
@@ -228,10 +226,10 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     start, start_step = time.perf_counter(), step
     bar = tqdm(total=cfg.steps, initial=step, desc=f"train {cfg.policy.type}/{cfg.sampler}", unit="step",
                dynamic_ncols=True)
+    data_start = time.perf_counter()
     for batch in dataloader:
-        t0 = time.perf_counter()
         batch = preprocessor(batch)
-        tracker.dataloading_s = time.perf_counter() - t0
+        tracker.dataloading_s = time.perf_counter() - data_start
         tracker, output = update_policy(
             tracker, policy, batch, optimizer, cfg.optimizer.grad_clip_norm, accelerator=accelerator,
             lr_scheduler=lr_scheduler,
@@ -241,7 +239,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         bar.update(1)
         bar.set_postfix(loss=f"{tracker.loss.val:.3f}", steps_s=f"{(step - start_step) / (time.perf_counter() - start):.1f}")
         if cfg.log_freq > 0 and step % cfg.log_freq == 0:
-            log.info(str(tracker))
+            tqdm.write(str(tracker))  # to stdout, above the progress bar
             if wandb_logger:
                 wandb_logger.log_dict({**tracker.to_dict(), **(output or {})}, step)
             tracker.reset_averages()
@@ -253,6 +251,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
             update_last_checkpoint(checkpoint_dir)
         if step >= cfg.steps:
             break
+        data_start = time.perf_counter()
     bar.close()
     elapsed = time.perf_counter() - start
     print(f"trained {step - start_step} steps in {elapsed:.1f} s ({(step - start_step) / max(elapsed, 1e-9):.1f} steps/s); "
