@@ -19,8 +19,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import draccus
-import pandas as pd
 import torch
 from lerobot.configs.default import DatasetConfig
 from lerobot.configs.policies import PreTrainedConfig

@@ -5,7 +5,6 @@ import os
 
 import numpy as np
 import pyarrow.parquet as pq
-import pytest
 
 from adademo_lerobot.collect import collect_fresh, fresh_state_seed
 from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector

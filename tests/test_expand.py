@@ -1,6 +1,5 @@
 """adademo-expand on real datasets and a real (weak) ACT checkpoint: strategies, plan_only, ledger, crash safety."""
 
-import json
 import math
 import shutil
 import signal

@@ -120,6 +120,94 @@ def check_obs_type(obs_type: str) -> None:
         raise AdaDemoError(f"unknown --suite.obs_type={obs_type!r}; choose one of {', '.join(OBS_TYPES)}")
 
 
+def check_common_config(config: SuiteConfig) -> None:
+    """Checks every suite shares: observation type, step limit, image size."""
+    check_obs_type(config.obs_type)
+    if config.max_episode_steps < 1:
+        raise AdaDemoError(f"--suite.max_episode_steps must be >= 1, got {config.max_episode_steps}")
+    if config.image_size < 16:
+        raise AdaDemoError(f"--suite.image_size must be >= 16 pixels, got {config.image_size}")
+
+
+class SuiteTaskEnv(gym.Env):
+    """The episode logic every suite's env shares, on top of four simulator-specific hooks.
+
+    Observations follow LeRobot's env convention: `agent_pos` (proprioception), `environment_state` (full state
+    + task one-hot) and, for `pixels_state`, `pixels` = {camera: HxWx3 uint8}. The initial state comes from
+    `reset(options={"initial_state": s})`, else from `pending_initial_state` (set per sub-env with
+    `VectorEnv.set_attr`, since gymnasium passes one options dict to all), else from the seed. Actions are cast
+    to float32 and clipped before stepping: exactly what is stored, so stored actions replay exactly.
+    `info["is_success"]` reports success; with `terminate_on_success` (evaluation) the episode ends there.
+
+    Subclasses set `self._raw` and implement `_sample_state`, `_restore`, `_raw_step` and `_observation`.
+    """
+
+    metadata = {"render_modes": ["rgb_array"]}
+
+    def __init__(self, suite: TaskSuite, task: str, terminate_on_success: bool, env_state_dim: int):
+        super().__init__()
+        cfg = suite.config
+        self.task = task
+        self.task_description = suite.task_description(task)
+        self.terminate_on_success = terminate_on_success
+        self.metadata = {**self.metadata, "render_fps": suite.fps}
+        self._max_episode_steps = cfg.max_episode_steps
+        self._onehot = suite.task_onehot(task)
+        self._pixels = cfg.obs_type == "pixels_state"
+        self._camera = getattr(cfg, "camera", "camera")
+        self.pending_initial_state: np.ndarray | None = None
+        self.initial_state: np.ndarray | None = None
+        self._steps = 0
+        obs_spaces = {
+            "agent_pos": gym.spaces.Box(-np.inf, np.inf, (suite.state_dim,), np.float64),
+            "environment_state": gym.spaces.Box(-np.inf, np.inf, (env_state_dim,), np.float64),
+        }
+        if self._pixels:
+            shape = (cfg.image_size, cfg.image_size, 3)
+            obs_spaces["pixels"] = gym.spaces.Dict({self._camera: gym.spaces.Box(0, 255, shape, np.uint8)})
+        self.observation_space = gym.spaces.Dict(obs_spaces)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (suite.action_dim,), np.float32)
+
+    # -- simulator-specific hooks -------------------------------------------------------------------------
+    def _sample_state(self, seed: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def _restore(self, state: np.ndarray):
+        """Reset the simulator to exactly `state`; returns the raw observation."""
+        raise NotImplementedError
+
+    def _raw_step(self, action: np.ndarray) -> tuple[object, float, bool]:
+        """Step the simulator; returns (raw observation, reward, success at this step)."""
+        raise NotImplementedError
+
+    def _observation(self, raw) -> dict:
+        raise NotImplementedError
+
+    # -- shared episode logic -----------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        state = (options or {}).get("initial_state")
+        if state is None and self.pending_initial_state is not None:
+            state, self.pending_initial_state = self.pending_initial_state, None
+        if state is None:
+            state = self._sample_state(seed if seed is not None else int(self.np_random.integers(2**62)))
+        raw = self._restore(np.asarray(state, dtype=np.float64))
+        self.initial_state = np.array(state, dtype=np.float64, copy=True)
+        self._steps = 0
+        return self._observation(raw), {"is_success": False}
+
+    def step(self, action):
+        action = np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
+        raw, reward, success = self._raw_step(action)
+        self._steps += 1
+        terminated = success and self.terminate_on_success
+        truncated = self._steps >= self._max_episode_steps and not terminated
+        info = {"is_success": success, "task": self.task}
+        if terminated or truncated:
+            info["final_info"] = {"is_success": success, "task": self.task}
+        return self._observation(raw), float(reward), terminated, truncated, info
+
+
 def derive_seed(*keys: int | str) -> int:
     """A stable 63-bit seed from a tuple of ints and strings (strings hashed with CRC32, stable across runs)."""
     ints = [k if isinstance(k, int) else zlib.crc32(k.encode()) for k in keys]

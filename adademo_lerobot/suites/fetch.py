@@ -30,13 +30,13 @@ from dataclasses import dataclass
 import gymnasium as gym
 import mujoco
 import numpy as np
-from gymnasium import spaces
 
 from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.base import (
     SuiteConfig,
-    check_obs_type,
+    SuiteTaskEnv,
+    check_common_config,
     check_task_names,
     onehot,
     split_task_list,
@@ -166,43 +166,27 @@ def full_observation(raw_obs: np.ndarray) -> np.ndarray:
     return out
 
 
-class FetchTaskEnv(gym.Env):
-    """One Fetch task with LeRobot-style dict observations and exact initial-state resets.
+class FetchTaskEnv(SuiteTaskEnv):
+    """One Fetch task: `agent_pos` = 10-D proprioception, `environment_state` = 25-D observation + goal + one-hot.
 
-    Observations: `agent_pos` (10-D proprioception), `environment_state` (25-D observation + goal + task
-    one-hot) and, for `pixels_state`, `pixels` = {camera: HxWx3 uint8}. `info["is_success"]` is the env's own
-    success (object, or gripper for Reach, within 5 cm of the goal); with `terminate_on_success` (evaluation)
-    the episode ends at the first success.
+    Success is the env's own (object, or gripper for Reach, within 5 cm of the goal).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
-
     def __init__(self, suite: FetchSuite, task: str, terminate_on_success: bool = True):
-        super().__init__()
+        super().__init__(suite, task, terminate_on_success, OBS_DIM + GOAL_DIM + len(suite.tasks))
         cfg = suite.config
-        self.task = task
-        self.task_description = suite.task_description(task)
-        self.terminate_on_success = terminate_on_success
-        self._max_episode_steps = cfg.max_episode_steps
-        self._onehot = suite.task_onehot(task)
-        self._pixels = cfg.obs_type == "pixels_state"
-        self._camera = cfg.camera
         # Always able to render: state-only envs render frames on demand for videos (e.g. `lerobot-eval`).
         self._raw = make_raw_env(task, True, cfg.image_size if self._pixels else RENDER_SIZE, cfg.camera)
-        # Set per sub-env through VectorEnv.set_attr before a batched reset (gymnasium passes one options dict).
-        self.pending_initial_state: np.ndarray | None = None
-        self.initial_state: np.ndarray | None = None
-        self._steps = 0
-        self._succeeded = False
-        obs_spaces = {
-            "agent_pos": spaces.Box(-np.inf, np.inf, (PROPRIO_DIM,), np.float64),
-            "environment_state": spaces.Box(-np.inf, np.inf, (OBS_DIM + GOAL_DIM + len(self._onehot),), np.float64),
-        }
-        if self._pixels:
-            shape = (cfg.image_size, cfg.image_size, 3)
-            obs_spaces["pixels"] = spaces.Dict({self._camera: spaces.Box(0, 255, shape, np.uint8)})
-        self.observation_space = spaces.Dict(obs_spaces)
-        self.action_space = spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
+
+    def _sample_state(self, seed: int) -> np.ndarray:
+        return sample_state(self._raw, seed)
+
+    def _restore(self, state: np.ndarray) -> dict:
+        return restore_state(self._raw, state)
+
+    def _raw_step(self, action: np.ndarray):
+        raw, reward, _, _, info = self._raw.step(action)
+        return raw, reward, bool(info.get("is_success", 0.0))
 
     def _observation(self, raw: dict) -> dict:
         full = full_observation(raw["observation"])
@@ -213,34 +197,6 @@ class FetchTaskEnv(gym.Env):
         if self._pixels:
             obs["pixels"] = {self._camera: np.ascontiguousarray(self._raw.render())}
         return obs
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        state = (options or {}).get("initial_state")
-        if state is None and self.pending_initial_state is not None:
-            state, self.pending_initial_state = self.pending_initial_state, None
-        if state is None:
-            state_seed = seed if seed is not None else int(self.np_random.integers(2**62))
-            state = sample_state(self._raw, state_seed)
-        raw = restore_state(self._raw, state)
-        self.initial_state = np.array(state, dtype=np.float64, copy=True)
-        self._steps = 0
-        self._succeeded = False
-        return self._observation(raw), {"is_success": False}
-
-    def step(self, action):
-        # float32 and clipped: exactly what is stored in the dataset, so stored actions replay exactly.
-        action = np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
-        raw, reward, _, _, raw_info = self._raw.step(action)
-        self._steps += 1
-        success = bool(raw_info.get("is_success", 0.0))
-        self._succeeded |= success
-        terminated = success and self.terminate_on_success
-        truncated = self._steps >= self._max_episode_steps and not terminated
-        info = {"is_success": success, "task": self.task}
-        if terminated or truncated:
-            info["final_info"] = {"is_success": success, "task": self.task}
-        return self._observation(raw), float(reward), terminated, truncated, info
 
     def render(self):
         """An RGB frame (image_size with `pixels_state`, else RENDER_SIZE), also for state-only envs."""
@@ -262,11 +218,7 @@ class FetchSuite:
     def __init__(self, config: SuiteConfig):
         if not isinstance(config, FetchSuiteConfig):
             config = FetchSuiteConfig(**{k: v for k, v in config.to_dict().items() if k != "type"})
-        check_obs_type(config.obs_type)
-        if config.max_episode_steps < 1:
-            raise AdaDemoError(f"--suite.max_episode_steps must be >= 1, got {config.max_episode_steps}")
-        if config.image_size < 16:
-            raise AdaDemoError(f"--suite.image_size must be >= 16 pixels, got {config.image_size}")
+        check_common_config(config)
         tasks = canonical_task_names(split_task_list(config.tasks))
         check_task_names(tasks, TASKS + list(SHORT_NAMES), "fetch")
         self.config = config
