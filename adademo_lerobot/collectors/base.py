@@ -136,11 +136,20 @@ def make_collector(config: CollectorConfig, suite: TaskSuite) -> ExpertCollector
             from adademo_lerobot.collectors.fetch_scripted import FetchScriptedExpert
 
             return FetchScriptedExpert(suite, config)
+        if suite.name == "adroit":
+            from adademo_lerobot.collectors.adroit_scripted import AdroitScriptedExpert
+
+            return AdroitScriptedExpert(suite, config)
         raise AdaDemoError(f"no scripted expert for suite {suite.name!r}")
+    if config.type == "policy":
+        from adademo_lerobot.collectors.policy import CheckpointExpert
+
+        return CheckpointExpert(suite, config)
     raise AdaDemoError(f"unknown collector type {config.type!r}")
 
 
 @CollectorConfig.register_subclass("scripted")
 @dataclass
 class ScriptedCollectorConfig(CollectorConfig):
-    """The suite's built-in scripted experts (MetaWorld: `metaworld.policies`; Fetch: `fetch_scripted`)."""
+    """The suite's built-in scripted experts (MetaWorld: `metaworld.policies`; Fetch: `fetch_scripted`; Adroit:
+    `adroit_scripted`)."""
