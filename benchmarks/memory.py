@@ -19,7 +19,8 @@ from _common import BIN, ROOT, RESULTS, grow_dataset, machine_line, train_small_
 
 def peak_rss_mb(args: list[str]) -> tuple[float, float]:
     start = time.perf_counter()
-    proc = subprocess.Popen([str(a) for a in args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    log = tempfile.TemporaryFile()  # not a pipe: a full pipe would block the child's progress bars
+    proc = subprocess.Popen([str(a) for a in args], stdout=subprocess.DEVNULL, stderr=log)
     ps, peak = psutil.Process(proc.pid), 0
     while proc.poll() is None:
         try:
@@ -29,7 +30,8 @@ def peak_rss_mb(args: list[str]) -> tuple[float, float]:
             pass
         time.sleep(0.05)
     if proc.returncode != 0:
-        raise RuntimeError(proc.stderr.read().decode()[-2000:])
+        log.seek(0)
+        raise RuntimeError(log.read().decode()[-2000:])
     return peak / 2**20, time.perf_counter() - start
 
 

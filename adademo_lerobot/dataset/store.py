@@ -224,7 +224,9 @@ class DemoDataset:
             atomic_write_text(write_root / SUITE_FILE, suite.config.to_json())
         else:
             _begin_write(self.root)
-            dataset = dataset_cls(self.repo_id, root=self.root)
+            # Appending never reads frames: load only the last episode's rows instead of the whole dataset.
+            last = json.loads((self.root / "meta" / "info.json").read_text())["total_episodes"] - 1
+            dataset = dataset_cls(self.repo_id, root=self.root, episodes=[last])
         indices = []
         for demo in demos:
             for frame in demo.frames:
