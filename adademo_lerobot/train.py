@@ -8,6 +8,8 @@ few lines of the training loop that build the DataLoader around our `WeightedFra
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -91,7 +93,8 @@ def find_last_checkpoint(output_dir: Path) -> Path | None:
     """The newest checkpoint whose weights and training state were both fully written."""
     candidates = []
     for d in (Path(output_dir) / "checkpoints").glob("[0-9]*"):
-        if (d / "pretrained_model" / "model.safetensors").exists() and (
+        # Only fully written checkpoints have a plain step name (see the save in `train`).
+        if d.name.isdigit() and (d / "pretrained_model" / "model.safetensors").exists() and (
             d / "training_state" / "training_step.json"
         ).exists():
             candidates.append(d)
@@ -244,10 +247,16 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
                 wandb_logger.log_dict({**tracker.to_dict(), **(output or {})}, step)
             tracker.reset_averages()
         if step % cfg.save_freq == 0 or step == cfg.steps:
+            # Written beside its final name and renamed into place, so a kill never leaves a half checkpoint
+            # that looks complete (LeRobot writes training_step.json before the RNG and optimizer state).
             checkpoint_dir = get_step_checkpoint_dir(cfg.output_dir, cfg.steps, step)
-            save_checkpoint(checkpoint_dir, step, cfg, accelerator.unwrap_model(policy), optimizer, lr_scheduler,
+            partial = checkpoint_dir.with_name(checkpoint_dir.name + ".partial")
+            shutil.rmtree(partial, ignore_errors=True)
+            save_checkpoint(partial, step, cfg, accelerator.unwrap_model(policy), optimizer, lr_scheduler,
                             preprocessor, postprocessor)
-            (checkpoint_dir / "pretrained_model" / ADADEMO_TRAIN_INFO).write_text(json.dumps(info, indent=2))
+            (partial / "pretrained_model" / ADADEMO_TRAIN_INFO).write_text(json.dumps(info, indent=2))
+            shutil.rmtree(checkpoint_dir, ignore_errors=True)
+            os.replace(partial, checkpoint_dir)
             update_last_checkpoint(checkpoint_dir)
         if step >= cfg.steps:
             break
