@@ -119,3 +119,20 @@ def test_card_for_many_tasks_has_one_row_per_round_and_task(expanded):
     for row in ("| 0 | reach-v3 | +3 | – |", "| 0 | push-v3 | +3 | – |", "| 1 | reach-v3 | +1 | – |",
                 "| 1 | push-v3 | +1 | – |"):
         assert row in card
+
+
+def test_run_pushes_its_dataset_at_the_end(hub, tmp_path):
+    """`adademo-run --push_to_hub=true` pushes the run's dataset, ledger included, once the run is complete."""
+    env = {k: v for k, v in os.environ.items() if k not in ("HF_TOKEN", "HUGGING_FACE_HUB_TOKEN", "HF_ENDPOINT")}
+    env.update(HF_ENDPOINT=hub.url, HF_HOME=str(tmp_path / "hf_home"), HF_TOKEN=TOKEN,
+               NO_PROXY="127.0.0.1,localhost", no_proxy="127.0.0.1,localhost")
+    proc = subprocess.run(
+        [str(BIN / "adademo-run"), "--config_path=recipes/tiny.yaml", f"--run_dir={tmp_path / 'run'}",
+         "--push_to_hub=true", "--hub_repo_id=alice/tiny-run"],
+        env=env, capture_output=True, text=True, timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert TOKEN not in proc.stdout + proc.stderr
+    files = hub.repo("alice/tiny-run").files("main")
+    assert {"meta/info.json", "meta/adademo/rounds.jsonl", "README.md"} <= set(files)
+    assert "| 1 | `adademo`" in files["README.md"].decode()
