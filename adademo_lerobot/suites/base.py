@@ -215,6 +215,50 @@ def derive_seed(*keys: int | str) -> int:
     return (int(high) << 31) | (int(low) >> 1)
 
 
+class SuiteBase:
+    """What every suite does the same way: its task list (one-hot order), task checks, envs and seeded states.
+
+    Subclasses set `env_class` and implement `_sampler_env(task)` (a bare simulator used only to draw initial
+    states) and `_sample(raw_env, seed)`, and call `_set_tasks` from `__init__`.
+    """
+
+    env_class: type[SuiteTaskEnv]
+
+    def _set_tasks(self, config: SuiteConfig, tasks: list[str]) -> None:
+        self.config = config
+        self._tasks = tasks
+        self.config.tasks = ",".join(tasks)  # stored canonical, in one-hot order
+        self._samplers: dict[str, object] = {}
+
+    @property
+    def tasks(self) -> list[str]:
+        """Task names in one-hot order."""
+        return list(self._tasks)
+
+    def make_env(self, task: str, terminate_on_success: bool = True) -> SuiteTaskEnv:
+        self._check_task(task)
+        return self.env_class(self, task, terminate_on_success)
+
+    def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
+        self._check_task(task)
+        if task not in self._samplers:
+            self._samplers[task] = self._sampler_env(task)
+        return self._sample(self._samplers[task], seed)
+
+    def task_onehot(self, task: str) -> np.ndarray:
+        return onehot(self._tasks, task)
+
+    def _sampler_env(self, task: str):
+        raise NotImplementedError
+
+    def _sample(self, raw_env, seed: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def _check_task(self, task: str) -> None:
+        if task not in self._tasks:
+            raise AdaDemoError(f"task {task!r} is not in this suite's task list {self._tasks}")
+
+
 def make_suite(config: SuiteConfig) -> TaskSuite:
     """Build the suite a config names (imports the family lazily: each pulls a different simulator)."""
     if config.type == "metaworld":

@@ -35,10 +35,10 @@ from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.base import (
     SuiteConfig,
+    SuiteBase,
     SuiteTaskEnv,
     check_common_config,
     check_task_names,
-    onehot,
     split_task_list,
 )
 
@@ -207,7 +207,7 @@ class FetchTaskEnv(SuiteTaskEnv):
         self._raw.close()
 
 
-class FetchSuite:
+class FetchSuite(SuiteBase):
     """FetchReach/Push/PickAndPlace/Slide v4 (short names `reach`, `push`, `pick_and_place`, `slide`, or `all`)."""
 
     name = "fetch"
@@ -215,45 +215,30 @@ class FetchSuite:
     action_dim = ACTION_DIM
     state_dim = PROPRIO_DIM
 
+    env_class = FetchTaskEnv
+
+    def _sampler_env(self, task: str):
+        return make_raw_env(task)
+
+    def _sample(self, raw_env, seed: int) -> np.ndarray:
+        return sample_state(raw_env, seed)
+
     def __init__(self, config: SuiteConfig):
         if not isinstance(config, FetchSuiteConfig):
             config = FetchSuiteConfig(**{k: v for k, v in config.to_dict().items() if k != "type"})
         check_common_config(config)
         tasks = canonical_task_names(split_task_list(config.tasks))
         check_task_names(tasks, TASKS + list(SHORT_NAMES), "fetch")
-        self.config = config
-        self._tasks = tasks
-        self.config.tasks = ",".join(tasks)  # stored canonical, in one-hot order
+        self._set_tasks(config, tasks)
         if config.obs_type == "pixels_state":
             choose_gl_backend()
         if config.camera != DEFAULT_CAMERA:  # fail now, not when the first env is made mid-collection
             make_raw_env(tasks[0], True, 16, config.camera).close()
-        self._samplers: dict[str, object] = {}
-
-    @property
-    def tasks(self) -> list[str]:
-        return list(self._tasks)
 
     @property
     def env_state_dim(self) -> int:
         return OBS_DIM + GOAL_DIM + len(self._tasks)
 
-    def make_env(self, task: str, terminate_on_success: bool = True) -> FetchTaskEnv:
-        self._check_task(task)
-        return FetchTaskEnv(self, task, terminate_on_success)
-
-    def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
-        self._check_task(task)
-        if task not in self._samplers:
-            self._samplers[task] = make_raw_env(task)
-        return sample_state(self._samplers[task], seed)
-
-    def task_onehot(self, task: str) -> np.ndarray:
-        return onehot(self._tasks, task)
-
     def task_description(self, task: str) -> str:
         return DESCRIPTIONS.get(task, task)
 
-    def _check_task(self, task: str) -> None:
-        if task not in self._tasks:
-            raise AdaDemoError(f"task {task!r} is not in this suite's task list {self._tasks}")

@@ -19,10 +19,10 @@ from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.base import (
     SuiteConfig,
+    SuiteBase,
     SuiteTaskEnv,
     check_common_config,
     check_task_names,
-    onehot,
     split_task_list,
 )
 
@@ -161,7 +161,7 @@ class MetaWorldTaskEnv(SuiteTaskEnv):
         self._raw.close()
 
 
-class MetaWorldSuite:
+class MetaWorldSuite(SuiteBase):
     """Any MetaWorld v3 task, plus the group names `mt10` and `mt50`."""
 
     name = "metaworld"
@@ -169,39 +169,27 @@ class MetaWorldSuite:
     action_dim = ACTION_DIM
     state_dim = PROPRIO_DIM
 
+    env_class = MetaWorldTaskEnv
+
+    def _sampler_env(self, task: str):
+        return make_raw_env(task)
+
+    def _sample(self, raw_env, seed: int) -> np.ndarray:
+        return sample_layout(raw_env, seed)
+
     def __init__(self, config: SuiteConfig):
         if not isinstance(config, MetaWorldSuiteConfig):
             config = MetaWorldSuiteConfig(**{k: v for k, v in config.to_dict().items() if k != "type"})
         check_common_config(config)
         tasks = expand_task_groups(split_task_list(config.tasks))
         check_task_names(tasks, all_task_names(), "metaworld")
-        self.config = config
-        self._tasks = tasks
-        self.config.tasks = ",".join(tasks)  # stored expanded, in one-hot order
+        self._set_tasks(config, tasks)
         if config.obs_type == "pixels_state":
             choose_gl_backend()
-        self._samplers: dict[str, object] = {}
-
-    @property
-    def tasks(self) -> list[str]:
-        return list(self._tasks)
 
     @property
     def env_state_dim(self) -> int:
         return RAW_OBS_DIM + len(self._tasks)
-
-    def make_env(self, task: str, terminate_on_success: bool = True) -> MetaWorldTaskEnv:
-        self._check_task(task)
-        return MetaWorldTaskEnv(self, task, terminate_on_success)
-
-    def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
-        self._check_task(task)
-        if task not in self._samplers:
-            self._samplers[task] = make_raw_env(task)
-        return sample_layout(self._samplers[task], seed)
-
-    def task_onehot(self, task: str) -> np.ndarray:
-        return onehot(self._tasks, task)
 
     def task_description(self, task: str) -> str:
         return self._descriptions.get(task, task)
@@ -212,6 +200,3 @@ class MetaWorldSuite:
 
         return {f"{k}-v3" if not k.endswith("-v3") else k: v for k, v in TASK_DESCRIPTIONS.items()}
 
-    def _check_task(self, task: str) -> None:
-        if task not in self._tasks:
-            raise AdaDemoError(f"task {task!r} is not in this suite's task list {self._tasks}")
