@@ -70,7 +70,6 @@ from adademo_lerobot.suites.base import (
     SuiteConfig,
     SuiteBase,
     SuiteTaskEnv,
-    check_common_config,
     check_task_names,
     split_task_list,
 )
@@ -328,9 +327,6 @@ class AdroitTaskEnv(SuiteTaskEnv):
         choose_gl_backend()
         return np.ascontiguousarray(self._raw.render())
 
-    def close(self):
-        self._raw.close()
-
 
 class AdroitSuite(SuiteBase):
     """AdroitHandDoor/Hammer/Pen/Relocate v1 (short names `door`, `hammer`, `pen`, `relocate`, or `all`)."""
@@ -341,6 +337,7 @@ class AdroitSuite(SuiteBase):
     state_dim = JOINT_DIM
 
     env_class = AdroitTaskEnv
+    config_class = AdroitSuiteConfig
 
     def _sampler_env(self, task: str):
         return make_raw_env(task)
@@ -349,14 +346,10 @@ class AdroitSuite(SuiteBase):
         return sample_state(raw_env, seed)
 
     def __init__(self, config: SuiteConfig):
-        if not isinstance(config, AdroitSuiteConfig):
-            config = AdroitSuiteConfig(**{k: v for k, v in config.to_dict().items() if k != "type"})
-        check_common_config(config)
+        config = self._checked_config(config)
         tasks = canonical_task_names(split_task_list(config.tasks))
         check_task_names(tasks, TASKS + list(SHORT_NAMES), "adroit")
         self._set_tasks(config, tasks)
-        if config.obs_type == "pixels_state":
-            choose_gl_backend()
         if config.camera != DEFAULT_CAMERA:  # fail now, not when the first env is made mid-collection
             for task in tasks:
                 make_raw_env(task, True, 16, config.camera).close()

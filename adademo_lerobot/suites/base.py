@@ -20,6 +20,7 @@ import draccus
 import gymnasium as gym
 import numpy as np
 
+from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
 
 OBS_TYPES = ("state", "pixels_state")
@@ -183,6 +184,9 @@ class SuiteTaskEnv(gym.Env):
     def _observation(self, raw) -> dict:
         raise NotImplementedError
 
+    def close(self):
+        self._raw.close()
+
     # -- shared episode logic -----------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -223,6 +227,16 @@ class SuiteBase:
     """
 
     env_class: type[SuiteTaskEnv]
+    config_class: type[SuiteConfig]
+
+    def _checked_config(self, config: SuiteConfig) -> SuiteConfig:
+        """The suite's own config class (a generic one is converted), checked, with a GL backend for pixels."""
+        if not isinstance(config, self.config_class):
+            config = self.config_class(**{k: v for k, v in config.to_dict().items() if k != "type"})
+        check_common_config(config)
+        if config.obs_type == "pixels_state":
+            choose_gl_backend()
+        return config
 
     def _set_tasks(self, config: SuiteConfig, tasks: list[str]) -> None:
         self.config = config

@@ -37,7 +37,6 @@ from adademo_lerobot.suites.base import (
     SuiteConfig,
     SuiteBase,
     SuiteTaskEnv,
-    check_common_config,
     check_task_names,
     split_task_list,
 )
@@ -203,9 +202,6 @@ class FetchTaskEnv(SuiteTaskEnv):
         choose_gl_backend()
         return np.ascontiguousarray(self._raw.render())
 
-    def close(self):
-        self._raw.close()
-
 
 class FetchSuite(SuiteBase):
     """FetchReach/Push/PickAndPlace/Slide v4 (short names `reach`, `push`, `pick_and_place`, `slide`, or `all`)."""
@@ -216,6 +212,7 @@ class FetchSuite(SuiteBase):
     state_dim = PROPRIO_DIM
 
     env_class = FetchTaskEnv
+    config_class = FetchSuiteConfig
 
     def _sampler_env(self, task: str):
         return make_raw_env(task)
@@ -224,14 +221,10 @@ class FetchSuite(SuiteBase):
         return sample_state(raw_env, seed)
 
     def __init__(self, config: SuiteConfig):
-        if not isinstance(config, FetchSuiteConfig):
-            config = FetchSuiteConfig(**{k: v for k, v in config.to_dict().items() if k != "type"})
-        check_common_config(config)
+        config = self._checked_config(config)
         tasks = canonical_task_names(split_task_list(config.tasks))
         check_task_names(tasks, TASKS + list(SHORT_NAMES), "fetch")
         self._set_tasks(config, tasks)
-        if config.obs_type == "pixels_state":
-            choose_gl_backend()
         if config.camera != DEFAULT_CAMERA:  # fail now, not when the first env is made mid-collection
             make_raw_env(tasks[0], True, 16, config.camera).close()
 

@@ -21,7 +21,6 @@ from adademo_lerobot.suites.base import (
     SuiteConfig,
     SuiteBase,
     SuiteTaskEnv,
-    check_common_config,
     check_task_names,
     split_task_list,
 )
@@ -158,7 +157,7 @@ class MetaWorldTaskEnv(SuiteTaskEnv):
     def close(self):
         if self._renderer is not None:
             self._renderer.close()
-        self._raw.close()
+        super().close()
 
 
 class MetaWorldSuite(SuiteBase):
@@ -170,6 +169,7 @@ class MetaWorldSuite(SuiteBase):
     state_dim = PROPRIO_DIM
 
     env_class = MetaWorldTaskEnv
+    config_class = MetaWorldSuiteConfig
 
     def _sampler_env(self, task: str):
         return make_raw_env(task)
@@ -178,14 +178,10 @@ class MetaWorldSuite(SuiteBase):
         return sample_layout(raw_env, seed)
 
     def __init__(self, config: SuiteConfig):
-        if not isinstance(config, MetaWorldSuiteConfig):
-            config = MetaWorldSuiteConfig(**{k: v for k, v in config.to_dict().items() if k != "type"})
-        check_common_config(config)
+        config = self._checked_config(config)
         tasks = expand_task_groups(split_task_list(config.tasks))
         check_task_names(tasks, all_task_names(), "metaworld")
         self._set_tasks(config, tasks)
-        if config.obs_type == "pixels_state":
-            choose_gl_backend()
 
     @property
     def env_state_dim(self) -> int:
