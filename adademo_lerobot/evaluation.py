@@ -83,6 +83,7 @@ class BatchedEvaluator:
             self._envs[(task, n)] = gym.vector.SyncVectorEnv(
                 [lambda: self.suite.make_env(task, terminate_on_success=True) for _ in range(n)]
             )
+            self._envs[(task, n)].set_attr("hold_after_episode", True)  # no simulation after an episode ends
         return self._envs[(task, n)]
 
     def run(self, task: str, seeds: list[int], states: list[np.ndarray] | None = None) -> list[EpisodeRecord]:

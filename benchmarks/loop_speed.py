@@ -51,7 +51,8 @@ def eval_worker(seconds: float, seed: int, ckpt: str, q) -> None:
 
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS), max_episode_steps=200))
     evaluator = BatchedEvaluator(suite, load_policy(ckpt), batch_size=10)
-    evaluator.run(TASKS[0], evaluation_seeds(seed, TASKS[0], 2))  # warm-up (envs, first inference)
+    for t in TASKS:  # warm-up: build every task's batch of envs and run the first inference outside the clock
+        evaluator.run(t, evaluation_seeds(seed, t, 10))
     evaluator.env_steps = 0
     start, k = time.perf_counter(), 0
     while time.perf_counter() - start < seconds:

@@ -46,6 +46,39 @@ def test_restore_is_exact_regardless_of_history(suite):
         assert np.abs(raw_obs[36:39]).sum() > 0
 
 
+def _stock_reset(raw, layout=None, seed=None):
+    """MetaWorld's own path: a full reset() (with hand settling, reset_model twice)."""
+    raw._freeze_rand_vec = layout is not None
+    if layout is None:
+        raw.seeded_rand_vec = True
+        raw.seed(seed)
+    else:
+        raw._last_rand_vec = layout.copy()
+    obs, _ = raw.reset()
+    return obs, np.array(raw._last_rand_vec, dtype=np.float64)
+
+
+def test_fast_sampling_and_restore_equal_metaworlds_own_reset_for_every_task():
+    """Sampling skips hand settling and restore runs reset_model's first pass without it: both must give exactly
+    what MetaWorld's full reset gives, layout, observation and the trajectory after it, for all 50 tasks."""
+    from adademo_lerobot.suites.metaworld import all_task_names, restore_layout, sample_layout
+
+    rng = np.random.default_rng(0)
+    for task in all_task_names():
+        stock, ours = make_raw_env(task), make_raw_env(task)
+        _, layout = _stock_reset(stock, seed=11)
+        np.testing.assert_array_equal(sample_layout(ours, 11), layout, err_msg=task)
+        restore_layout(ours, layout)
+        for _ in range(int(rng.integers(1, 10))):  # some history in our env only
+            ours.step(rng.uniform(-1, 1, 4).astype(np.float32))
+        stock_obs, _ = _stock_reset(stock, layout=layout)
+        np.testing.assert_array_equal(restore_layout(ours, layout), stock_obs, err_msg=task)
+        for action in rng.uniform(-1, 1, (15, 4)).astype(np.float32):
+            a, b = stock.step(action), ours.step(action)
+            np.testing.assert_array_equal(a[0], b[0], err_msg=task)
+            assert a[1] == b[1] and a[4]["success"] == b[4]["success"], task
+
+
 def test_reset_seed_matches_sample_initial_state(suite):
     env = suite.make_env("push-v3")
     obs_seed, _ = env.reset(seed=5)
@@ -63,6 +96,35 @@ def test_pending_initial_state_for_vector_envs(suite):
     envs.reset()
     for env, state in zip(envs.envs, states):
         np.testing.assert_array_equal(env.initial_state, state)
+
+
+def test_a_held_sub_env_stops_simulating_after_its_episode_until_given_a_new_state(suite):
+    """Batched evaluation: the finished sub-env repeats its final observation and its simulator stays still."""
+    import gymnasium as gym
+
+    from lerobot.envs.metaworld import TASK_POLICY_MAPPING
+
+    expert = TASK_POLICY_MAPPING["reach-v3"]()
+    envs = gym.vector.SyncVectorEnv([lambda: suite.make_env("reach-v3") for _ in range(2)])
+    envs.set_attr("hold_after_episode", True)
+    envs.set_attr("pending_initial_state", [suite.sample_initial_state("reach-v3", s) for s in (1, 2)])
+    obs, _ = envs.reset()
+    done_at = None
+    for t in range(120):  # env 0 follows the expert and succeeds; env 1 stands still and runs on
+        actions = np.stack([expert.get_action(obs["environment_state"][0, :39]), np.zeros(4)])
+        obs, _, terminated, truncated, _ = envs.step(actions)
+        if done_at is None and terminated[0]:
+            done_at, final, clock = t, obs["environment_state"][0].copy(), envs.envs[0]._raw.data.time
+    assert done_at is not None and done_at < 100
+    assert envs.envs[0]._raw.data.time == clock  # no simulation after the episode
+    np.testing.assert_array_equal(obs["environment_state"][0], final)
+    assert envs.envs[1]._steps == 120  # the other episode was not held
+    # A new initial state ends the hold.
+    state = suite.sample_initial_state("reach-v3", 3)
+    envs.set_attr("pending_initial_state", [state, state])
+    envs.reset()
+    assert envs.envs[0]._raw.data.time < clock
+    np.testing.assert_array_equal(envs.envs[0].initial_state, state)
 
 
 def test_task_onehot_and_observation_layout(suite):

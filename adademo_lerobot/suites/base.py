@@ -158,6 +158,11 @@ class SuiteTaskEnv(gym.Env):
         self._camera = getattr(cfg, "camera", "camera")
         self.pending_initial_state: np.ndarray | None = None
         self.initial_state: np.ndarray | None = None
+        # Batched evaluation: LeRobot's rollout() steps every sub-env until the slowest episode ends and ignores
+        # the rest. With `hold_after_episode`, a sub-env whose episode is over (and that has no new initial state)
+        # repeats its final observation instead of auto-resetting and simulating steps nobody reads.
+        self.hold_after_episode = False
+        self._final_obs: dict | None = None
         self._steps = 0
         obs_spaces = {
             "agent_pos": gym.spaces.Box(-np.inf, np.inf, (suite.state_dim,), np.float64),
@@ -193,6 +198,9 @@ class SuiteTaskEnv(gym.Env):
         state = (options or {}).get("initial_state")
         if state is None and self.pending_initial_state is not None:
             state, self.pending_initial_state = self.pending_initial_state, None
+        if state is None and self._holding:
+            return self._final_obs, {"is_success": False}
+        self._final_obs = None
         if state is None:
             state = self._sample_state(seed if seed is not None else int(self.np_random.integers(2**62)))
         raw = self._restore(np.asarray(state, dtype=np.float64))
@@ -200,16 +208,24 @@ class SuiteTaskEnv(gym.Env):
         self._steps = 0
         return self._observation(raw), {"is_success": False}
 
+    @property
+    def _holding(self) -> bool:
+        return self.hold_after_episode and self._final_obs is not None
+
     def step(self, action):
+        if self._holding:
+            return self._final_obs, 0.0, False, False, {"is_success": False, "task": self.task}
         action = np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
         raw, reward, success = self._raw_step(action)
         self._steps += 1
         terminated = success and self.terminate_on_success
         truncated = self._steps >= self._max_episode_steps and not terminated
         info = {"is_success": success, "task": self.task}
+        obs = self._observation(raw)
         if terminated or truncated:
             info["final_info"] = {"is_success": success, "task": self.task}
-        return self._observation(raw), float(reward), terminated, truncated, info
+            self._final_obs = obs
+        return obs, float(reward), terminated, truncated, info
 
 
 def derive_seed(*keys: int | str) -> int:

@@ -8,6 +8,7 @@ goal is part of the initial state the policy must condition on, and the scripted
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from dataclasses import dataclass
 from functools import cached_property
@@ -83,12 +84,33 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     return env
 
 
+@contextlib.contextmanager
+def hand_settling_skipped(raw_env):
+    """MetaWorld's reset settles the hand with 50 physics steps per `reset_model()`; skip them, keeping the
+    kinematics and `init_tcp` that reset code reads. They consume no randomness and touch no model field."""
+
+    def kinematics_only(steps: int = 50) -> None:
+        mujoco.mj_forward(raw_env.model, raw_env.data)
+        raw_env.init_tcp = raw_env.tcp_center
+
+    raw_env._reset_hand = kinematics_only
+    try:
+        yield
+    finally:
+        del raw_env._reset_hand
+
+
 def sample_layout(raw_env, seed: int) -> np.ndarray:
-    """Let the env draw its own valid layout from `seed` (some tasks resample until objects do not overlap)."""
+    """Let the env draw its own valid layout from `seed` (some tasks resample until objects do not overlap).
+
+    The draw is MetaWorld's own `reset()` without hand settling: the same layout as a full reset's, at a fraction
+    of the cost. The env is left unsettled: restore a layout before stepping it.
+    """
     raw_env._freeze_rand_vec = False
     raw_env.seeded_rand_vec = True
     raw_env.seed(int(seed))
-    raw_env.reset()
+    with hand_settling_skipped(raw_env):
+        raw_env.reset()
     raw_env._freeze_rand_vec = True
     return np.array(raw_env._last_rand_vec, dtype=np.float64, copy=True)
 
@@ -104,12 +126,21 @@ def restore_layout(raw_env, layout: np.ndarray) -> np.ndarray:
     # Clear model edits, solver warm-start and other history: a restore equals a fresh env's first reset.
     for name, value in raw_env._adademo_pristine_model.items():
         getattr(raw_env.model, name)[:] = value
-    mujoco.mj_resetData(raw_env.model, raw_env.data)
     raw_env._last_rand_vec = layout.copy()
     raw_env._freeze_rand_vec = True
     raw_env._did_see_sim_exception = False
-    obs, _ = raw_env.reset()
-    return obs
+    # MetaWorld's reset() runs reset_model() twice: the first pass only matters through the model fields it edits
+    # (mj_resetData then wipes its simulation), so it runs without hand settling; the second pass is the real one.
+    # Same state as reset() (checked against it for every task in tests/test_suite_metaworld.py), half the cost.
+    raw_env.curr_path_length = 0
+    mujoco.mj_resetData(raw_env.model, raw_env.data)
+    with hand_settling_skipped(raw_env):
+        raw_env.reset_model()
+    mujoco.mj_resetData(raw_env.model, raw_env.data)
+    obs = raw_env.reset_model()
+    raw_env._prev_obs = obs[:18].copy()
+    obs[18:36] = raw_env._prev_obs
+    return obs.astype(np.float64)
 
 
 class MetaWorldTaskEnv(SuiteTaskEnv):
