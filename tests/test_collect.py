@@ -5,6 +5,7 @@ import os
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 
 from adademo_lerobot.collect import collect_fresh, fresh_state_seed
 from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector
@@ -174,3 +175,36 @@ def test_bad_input_gets_one_clear_error_and_no_change(tmp_path, reach_push_datas
         ro = tmp_path / "ro"
         ro.mkdir(mode=0o500)
         fails("--suite.tasks=reach-v3", f"--dataset.root={ro / 'ds'}", match="not a writable folder")
+
+
+def test_appends_read_only_the_last_episode_row_and_keep_indices_contiguous(tmp_path):
+    """Appends open the dataset with only the last meta/episodes row: frame and episode indices must still
+    continue exactly where the previous append stopped, across several files, for stock LeRobot."""
+    import dataclasses
+
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from adademo_lerobot.dataset.store import LastEpisodeRow
+    from adademo_lerobot.errors import AdaDemoError
+
+    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3"))
+    collector = make_collector(ScriptedCollectorConfig(), suite)
+    demo = collector.collect("reach-v3", suite.sample_initial_state("reach-v3", 1), 1).demonstration
+    root = tmp_path / "ds"
+    ds = DemoDataset("local/a", root, suite.config)
+    for k in range(4):  # every append writes new data and meta files
+        assert ds.append(suite, [dataclasses.replace(demo, seed=10 * k + i) for i in range(2)], k, "t", "c") == [2 * k, 2 * k + 1]
+    assert len(list((root / "meta" / "episodes").rglob("*.parquet"))) == 4
+    stock = LeRobotDataset("local/a", root=root)
+    n = len(demo.frames)
+    assert stock.meta.total_episodes == 8 and len(stock) == 8 * n
+    assert [int(i) for i in stock.hf_dataset["index"]] == list(range(8 * n))
+    assert [(e["dataset_from_index"], e["dataset_to_index"]) for e in stock.meta.episodes] == [(i * n, (i + 1) * n) for i in range(8)]
+    assert list(read_episode_metadata(root)["adademo/seed"]) == [0, 1, 10, 11, 20, 21, 30, 31]
+    # A dataset whose info.json disagrees with its episode rows is refused with a clear error.
+    assert LastEpisodeRow(root, 8)[-1]["episode_index"] == 7
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["total_episodes"] = 9
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    with pytest.raises(AdaDemoError, match="counts 9 episodes but the last row of meta/episodes is episode 7"):
+        ds.append(suite, [demo], 9, "t", "c")

@@ -12,6 +12,7 @@ dataset on disk always holds exactly the committed episodes, and appending costs
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -69,6 +70,53 @@ def _provenance_dataset_class():
             return {**super()._save_episode_data(episode_buffer), **self._extra_episode_metadata}
 
     return ProvenanceLeRobotDataset
+
+
+class LastEpisodeRow:
+    """`meta.episodes` for an append: only the last episode's row (without its stats), found at its index.
+
+    LeRobot 0.4.4 loads every row of `meta/episodes` when a dataset is opened, which makes an append cost
+    O(dataset). Appending only reads the last row (where the next episode's frames and files start).
+    """
+
+    def __init__(self, root: Path, total_episodes: int):
+        files = sorted((Path(root) / "meta" / "episodes").glob("*/*.parquet"))
+        if not files:
+            raise AdaDemoError(f"dataset {root} has no meta/episodes files; is it a LeRobot v3.0 dataset?")
+        table = pq.read_table(files[-1])
+        columns = [c for c in table.column_names if not c.startswith("stats/")]
+        self.row = table.select(columns).slice(table.num_rows - 1).to_pylist()[0]
+        self.total = total_episodes
+        if self.row["episode_index"] != total_episodes - 1:
+            raise AdaDemoError(
+                f"dataset {root} is inconsistent: meta/info.json counts {total_episodes} episodes but the last "
+                f"row of meta/episodes is episode {self.row['episode_index']}"
+            )
+
+    def __len__(self) -> int:
+        return self.total
+
+    def __getitem__(self, index: int) -> dict:
+        if index not in (-1, self.total - 1):
+            raise IndexError(f"only the last episode's metadata is loaded for appending, not episode {index}")
+        return self.row
+
+
+@contextlib.contextmanager
+def _episode_rows_loaded_as_last_row_only():
+    """Swap the `load_episodes` that LeRobotDataset's constructor calls for `LastEpisodeRow`, for one open."""
+    import lerobot.datasets.lerobot_dataset as lerobot_dataset
+
+    stock = lerobot_dataset.load_episodes
+
+    def last_row_only(root: Path) -> LastEpisodeRow:
+        return LastEpisodeRow(root, json.loads((Path(root) / "meta" / "info.json").read_text())["total_episodes"])
+
+    lerobot_dataset.load_episodes = last_row_only
+    try:
+        yield
+    finally:
+        lerobot_dataset.load_episodes = stock
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -224,9 +272,10 @@ class DemoDataset:
             atomic_write_text(write_root / SUITE_FILE, suite.config.to_json())
         else:
             _begin_write(self.root)
-            # Appending never reads frames: load only the last episode's rows instead of the whole dataset.
+            # Appending never reads frames: load only the last episode's frames and metadata row.
             last = json.loads((self.root / "meta" / "info.json").read_text())["total_episodes"] - 1
-            dataset = dataset_cls(self.repo_id, root=self.root, episodes=[last])
+            with _episode_rows_loaded_as_last_row_only():
+                dataset = dataset_cls(self.repo_id, root=self.root, episodes=[last])
         indices = []
         for demo in demos:
             for frame in demo.frames:
