@@ -1,10 +1,12 @@
-"""Success of the Fetch scripted experts over seeded random initial states (prints a markdown table).
+"""Success of a suite's scripted experts over seeded random initial states (prints a markdown table).
 
-    ~/.venvs/adademo-lerobot/bin/python benchmarks/fetch_expert_success.py            # 100 states per task
-    ~/.venvs/adademo-lerobot/bin/python benchmarks/fetch_expert_success.py --states 20 --tasks reach,push
+    ~/.venvs/adademo-lerobot/bin/python benchmarks/expert_success.py --suite fetch     # 100 states per task
+    ~/.venvs/adademo-lerobot/bin/python benchmarks/expert_success.py --suite adroit --states 20 --tasks door
 
 Initial states are `suite.sample_initial_state(task, seed)` for seeds 0..states-1; each is given to the
-collector once (`max_attempts=1`, so no retries with action noise) within the suite's step limit (default 50).
+collector once (`max_attempts=1`, so no retries with action noise) within the suite's step limit (by default the
+envs' own: Fetch 50, Adroit 200, MetaWorld 300). Success is the suite's own rule (`info["is_success"]`; Adroit:
+DAPG's, goal achieved on more than 25 steps, Pen 20). Adroit Hammer has no scripted expert and is not measured.
 """
 
 from __future__ import annotations
@@ -15,19 +17,31 @@ import time
 import numpy as np
 
 from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector
-from adademo_lerobot.suites.base import make_suite
-from adademo_lerobot.suites.fetch import FetchSuiteConfig
+from adademo_lerobot.suites.base import SuiteConfig, make_suite
+
+DEFAULTS = {  # suite -> (tasks, max_episode_steps, title)
+    "fetch": ("reach,push,pick_and_place,slide", 50, "Fetch"),
+    "adroit": ("door,pen,relocate", 200, "Adroit"),
+    "metaworld": ("mt10", 300, "MetaWorld"),
+}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", default="reach,push,pick_and_place,slide")
+    parser.add_argument("--suite", choices=sorted(DEFAULTS), required=True)
+    parser.add_argument("--tasks", help="comma-separated tasks (default: every task with a scripted expert)")
     parser.add_argument("--states", type=int, default=100, help="initial states per task (seeds 0..states-1)")
     parser.add_argument("--max_attempts", type=int, default=1)
-    parser.add_argument("--max_episode_steps", type=int, default=50)
+    parser.add_argument("--max_episode_steps", type=int)
     args = parser.parse_args()
+    default_tasks, default_steps, title = DEFAULTS[args.suite]
+    args.tasks = args.tasks or default_tasks
+    args.max_episode_steps = args.max_episode_steps or default_steps
 
-    suite = make_suite(FetchSuiteConfig(tasks=args.tasks, max_episode_steps=args.max_episode_steps))
+    import adademo_lerobot.suites  # noqa: F401  (registers the suite configs)
+
+    config = SuiteConfig.get_choice_class(args.suite)(tasks=args.tasks, max_episode_steps=args.max_episode_steps)
+    suite = make_suite(config)
     collector = make_collector(ScriptedCollectorConfig(max_attempts=args.max_attempts), suite)
     rows = []
     for task in suite.tasks:
@@ -47,9 +61,8 @@ def main() -> None:
         rows.append((task, f"{successes}/{args.states}", f"{100.0 * successes / args.states:.0f}%", mean_frames,
                      str(env_steps), f"{seconds:.1f}", shown or "-"))
 
-    header = ("task", "successes", "success rate", "mean demo frames", "env steps", "wall s",
-              "failed seeds")
-    print(f"Fetch scripted experts, seeds 0..{args.states - 1}, max_attempts={args.max_attempts}, "
+    header = ("task", "successes", "success rate", "mean demo frames", "env steps", "wall s", "failed seeds")
+    print(f"{title} scripted experts, seeds 0..{args.states - 1}, max_attempts={args.max_attempts}, "
           f"max_episode_steps={args.max_episode_steps}\n")
     print("| " + " | ".join(header) + " |")
     print("|" + "|".join("---" for _ in header) + "|")
