@@ -1,6 +1,7 @@
-"""What every non-MetaWorld suite must do the same way (MetaWorld's own checks are in test_suite_metaworld.py):
-exact restore in a used env, seeded initial states, demos that replay exactly from the dataset, camera images
-that leave the state untouched, and one `adademo-expand` round through the CLI."""
+"""What every suite must do the same way: exact restore in a used env and seeded initial states (all three
+suites), demos that replay exactly from the dataset, camera images that leave the state untouched, and one
+`adademo-expand` round through the CLI (Fetch and Adroit here; MetaWorld's are in test_collect, test_pixels and
+test_expand)."""
 
 import ctypes.util
 import os
@@ -16,6 +17,7 @@ from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.adroit import AdroitSuiteConfig
 from adademo_lerobot.suites.base import make_suite
 from adademo_lerobot.suites.fetch import FetchSuiteConfig
+from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 from conftest import TINY_ACT, run_cli
 
 
@@ -35,6 +37,8 @@ CASES = {
     "adroit": Case(AdroitSuiteConfig, "door,hammer,pen,relocate", "door,relocate", "relocate", "door,relocate", 1,
                    "adroit-scripted"),
 }
+ALL_SUITES = {**CASES, "metaworld": Case(MetaWorldSuiteConfig, "reach-v3,push-v3,pick-place-v3,peg-insert-side-v3,"
+                                          "door-open-v3", "", "", "", 0, "metaworld-scripted")}
 needs_gl = pytest.mark.skipif(ctypes.util.find_library("OSMesa") is None and not os.environ.get("MUJOCO_GL"),
                               reason="needs libosmesa6 or a GPU (MUJOCO_GL=egl)")
 
@@ -43,9 +47,9 @@ def _actions(suite, n=50, seed=0):
     return np.random.default_rng(seed).uniform(-1.0, 1.0, size=(n, suite.action_dim)).astype(np.float32)
 
 
-@pytest.mark.parametrize("name", CASES)
+@pytest.mark.parametrize("name", ALL_SUITES)
 def test_restore_in_a_used_env_equals_a_fresh_env_for_50_steps(name):
-    suite = make_suite(CASES[name].config(tasks=CASES[name].all_tasks))
+    suite = make_suite(ALL_SUITES[name].config(tasks=ALL_SUITES[name].all_tasks))
     for task in suite.tasks:
         state = suite.sample_initial_state(task, 7)
         used = suite.make_env(task, terminate_on_success=False)
@@ -65,9 +69,9 @@ def test_restore_in_a_used_env_equals_a_fresh_env_for_50_steps(name):
                                           err_msg=f"{task} diverged at step {t}")
 
 
-@pytest.mark.parametrize("name", CASES)
+@pytest.mark.parametrize("name", ALL_SUITES)
 def test_same_seed_same_initial_state_and_reset_seed_matches(name):
-    suite = make_suite(CASES[name].config(tasks=CASES[name].all_tasks))
+    suite = make_suite(ALL_SUITES[name].config(tasks=ALL_SUITES[name].all_tasks))
     for task in suite.tasks:
         a = suite.sample_initial_state(task, 123)
         b = suite.sample_initial_state(task, 123)
@@ -80,7 +84,9 @@ def test_same_seed_same_initial_state_and_reset_seed_matches(name):
         np.testing.assert_array_equal(env.initial_state, suite.sample_initial_state(task, 5))
         obs_state, _ = env.reset(options={"initial_state": suite.sample_initial_state(task, 5)})
         np.testing.assert_array_equal(obs_seed["environment_state"], obs_state["environment_state"])
-    first, second = suite.tasks[:2]
+    # A state of the wrong size is refused (MetaWorld tasks with equal-size layouts cannot be told apart).
+    sizes = {t: suite.sample_initial_state(t, 0).size for t in suite.tasks}
+    first, second = next((a, b) for a in suite.tasks for b in suite.tasks if sizes[a] != sizes[b])
     with pytest.raises(AdaDemoError, match="another task"):
         suite.make_env(first).reset(options={"initial_state": suite.sample_initial_state(second, 0)})
 
