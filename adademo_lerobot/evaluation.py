@@ -7,6 +7,7 @@ exactly the state we asked for.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -65,15 +66,33 @@ def evaluation_seeds(seed: int, task: str, n: int) -> list[int]:
     return [derive_seed(seed, "eval", task, k) for k in range(n)]
 
 
+@contextlib.contextmanager
+def _without_rollout_progress_bar():
+    """LeRobot's rollout() draws a bar per batch of envs; ours count episodes instead (logs stay readable)."""
+    import lerobot.scripts.lerobot_eval as lerobot_eval
+
+    stock = lerobot_eval.trange
+
+    def silent_trange(*args, **kwargs):
+        return stock(*args, **{**kwargs, "disable": True})
+
+    lerobot_eval.trange = silent_trange
+    try:
+        yield
+    finally:
+        lerobot_eval.trange = stock
+
+
 class BatchedEvaluator:
     """Runs a policy from given initial states, `batch_size` episodes at a time per task."""
 
-    def __init__(self, suite: TaskSuite, loaded: LoadedPolicy, batch_size: int = 10):
+    def __init__(self, suite: TaskSuite, loaded: LoadedPolicy, batch_size: int = 10, progress=None):
         if batch_size < 1:
             raise AdaDemoError(f"--eval.batch_size must be >= 1, got {batch_size}")
         from lerobot.processor import PolicyProcessorPipeline
 
         self.suite, self.loaded, self.batch_size = suite, loaded, batch_size
+        self.progress = progress  # an optional tqdm bar advanced by one per finished episode
         self._identity = PolicyProcessorPipeline(steps=[])
         self._envs: dict[tuple[str, int], gym.vector.SyncVectorEnv] = {}
         self.env_steps = 0
@@ -96,7 +115,7 @@ class BatchedEvaluator:
             batch_seeds, batch_states = seeds[begin : begin + self.batch_size], states[begin : begin + self.batch_size]
             env = self._vector_env(task, len(batch_seeds))
             env.set_attr("pending_initial_state", [np.asarray(s, dtype=np.float64) for s in batch_states])
-            with torch.inference_mode():
+            with torch.inference_mode(), _without_rollout_progress_bar():
                 out = rollout(env, self.loaded.policy, self._identity, self._identity,
                               self.loaded.preprocessor, self.loaded.postprocessor)
             done = out["done"].numpy()
@@ -107,11 +126,31 @@ class BatchedEvaluator:
                 self.env_steps += steps
                 records.append(EpisodeRecord(task, int(s), np.asarray(st, np.float64).tolist(),
                                              bool(success[i, :steps].any()), steps, float(reward[i, :steps].sum())))
+            if self.progress is not None:
+                self.progress.update(len(batch_seeds))
+                self.progress.set_postfix(task=task, success=f"{np.mean([r.success for r in records]):.0%}")
         return records
 
     def close(self) -> None:
         for env in self._envs.values():
             env.close()
+
+
+def evaluate_fixed_set(suite: TaskSuite, loaded: LoadedPolicy, seed: int, episodes_per_task: int,
+                       batch_size: int) -> tuple[list[EpisodeRecord], int, float]:
+    """Every task on its fixed evaluation states, with one progress bar over episodes.
+    Returns (records, env steps, wall seconds)."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(suite.tasks) * episodes_per_task, desc="evaluating", unit="episode", dynamic_ncols=True)
+    evaluator = BatchedEvaluator(suite, loaded, batch_size, progress=bar)
+    start = time.perf_counter()
+    records: list[EpisodeRecord] = []
+    for task in suite.tasks:
+        records += evaluator.run(task, evaluation_seeds(seed, task, episodes_per_task))
+    evaluator.close()
+    bar.close()
+    return records, evaluator.env_steps, time.perf_counter() - start
 
 
 def success_table(records: list[EpisodeRecord], tasks: list[str]) -> pd.DataFrame:
@@ -160,20 +199,13 @@ def run_eval(cfg) -> pd.DataFrame:
     torch.set_num_threads(cfg.torch_threads)
     loaded = load_policy(cfg.policy.path, cfg.device)
     check_policy_matches_dataset(loaded.config, dataset_features(suite))
-    evaluator = BatchedEvaluator(suite, loaded, cfg.eval.batch_size)
-    start = time.perf_counter()
-    records: list[EpisodeRecord] = []
-    from tqdm import tqdm
-
-    for task in tqdm(suite.tasks, desc="evaluating", unit="task", dynamic_ncols=True):
-        records += evaluator.run(task, evaluation_seeds(cfg.seed, task, cfg.episodes_per_task))
-    evaluator.close()
-    elapsed = time.perf_counter() - start
+    records, env_steps, elapsed = evaluate_fixed_set(suite, loaded, cfg.seed, cfg.episodes_per_task,
+                                                     cfg.eval.batch_size)
     table = success_table(records, suite.tasks)
     print(format_success_table(table))
     write_eval_outputs(Path(cfg.output_dir), records, table, {
         "policy_path": str(cfg.policy.path), "seed": cfg.seed, "episodes_per_task": cfg.episodes_per_task,
-        "env_steps": evaluator.env_steps, "wall_seconds": elapsed, "suite": suite.config.to_dict()})
-    print(f"{evaluator.env_steps} env steps in {elapsed:.1f} s ({evaluator.env_steps / max(elapsed, 1e-9):.0f} steps/s); "
+        "env_steps": env_steps, "wall_seconds": elapsed, "suite": suite.config.to_dict()})
+    print(f"{env_steps} env steps in {elapsed:.1f} s ({env_steps / max(elapsed, 1e-9):.0f} steps/s); "
           f"records: {Path(cfg.output_dir) / 'eval_episodes.parquet'}")
     return table

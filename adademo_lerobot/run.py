@@ -29,7 +29,7 @@ from adademo_lerobot.configs import EvalBatchArgs, ExpandConfig, PolicyPathArgs,
 from adademo_lerobot.dataset.store import DemoDataset, atomic_write_text, read_episode_metadata
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.evaluation import (
-    BatchedEvaluator, evaluation_seeds, format_success_table, load_policy, success_table, write_eval_outputs,
+    evaluate_fixed_set, format_success_table, load_policy, success_table, write_eval_outputs,
 )
 from adademo_lerobot.expand import run_expand
 from adademo_lerobot.ledger import read_ledger
@@ -235,18 +235,14 @@ def train_round(cfg: RunConfig, run_dir: Path, dataset_root: Path, repo_id: str,
 def evaluate_round(cfg: RunConfig, suite, run_dir: Path, checkpoint: Path, i: int) -> dict:
     torch.set_num_threads(cfg.train.torch_threads)
     loaded = load_policy(checkpoint, cfg.device)
-    evaluator = BatchedEvaluator(suite, loaded, cfg.eval.batch_size)
-    start = time.perf_counter()
-    records = []
-    for task in suite.tasks:
-        records += evaluator.run(task, evaluation_seeds(cfg.eval.seed, task, cfg.eval.episodes_per_task))
-    evaluator.close()
+    records, env_steps, seconds = evaluate_fixed_set(suite, loaded, cfg.eval.seed, cfg.eval.episodes_per_task,
+                                                     cfg.eval.batch_size)
     table = success_table(records, suite.tasks)
     print(f"round {i} evaluation (fixed set, {cfg.eval.episodes_per_task} episodes per task):")
     print(format_success_table(table))
     out = run_dir / "eval" / f"round-{i:03d}"
-    write_eval_outputs(out, records, table, {"round": i, "policy_path": str(checkpoint), "env_steps": evaluator.env_steps,
-                                             "wall_seconds": time.perf_counter() - start})
+    write_eval_outputs(out, records, table, {"round": i, "policy_path": str(checkpoint), "env_steps": env_steps,
+                                             "wall_seconds": seconds})
     return {"average_success": float(table.success_rate.iloc[-1])}
 
 
