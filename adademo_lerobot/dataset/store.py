@@ -256,7 +256,6 @@ class DemoDataset:
         if not demos:
             return []
         dataset_cls = _provenance_dataset_class()
-        datasets.disable_progress_bars()  # one "Map" bar per episode otherwise
         creating = not (self.root / "meta" / "info.json").exists()
         if creating:
             # A brand-new dataset is built in a sibling folder and renamed into place once it is whole.
@@ -276,6 +275,8 @@ class DemoDataset:
             last = json.loads((self.root / "meta" / "info.json").read_text())["total_episodes"] - 1
             with _episode_rows_loaded_as_last_row_only():
                 dataset = dataset_cls(self.repo_id, root=self.root, episodes=[last])
+        # One "Map" bar per episode otherwise; disabled after opening, whose loader turns the bars back on.
+        datasets.disable_progress_bars()
         indices = []
         for demo in demos:
             for frame in demo.frames:

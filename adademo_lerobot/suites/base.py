@@ -14,7 +14,7 @@ import difflib
 import json
 import zlib
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import draccus
 import gymnasium as gym
@@ -192,6 +192,14 @@ class SuiteTaskEnv(gym.Env):
     def close(self):
         self._raw.close()
 
+    def render(self):
+        """An RGB frame (image_size with `pixels_state`, else the simulator's default), also for state-only envs."""
+        choose_gl_backend()
+        return np.ascontiguousarray(self._raw.render())
+
+    def _camera_image(self) -> dict:
+        return {self._camera: self.render()}
+
     # -- shared episode logic -----------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -238,12 +246,14 @@ def derive_seed(*keys: int | str) -> int:
 class SuiteBase:
     """What every suite does the same way: its task list (one-hot order), task checks, envs and seeded states.
 
-    Subclasses set `env_class` and implement `_sampler_env(task)` (a bare simulator used only to draw initial
-    states) and `_sample(raw_env, seed)`, and call `_set_tasks` from `__init__`.
+    Subclasses set `env_class`, `config_class`, `make_sampler_env(task)` (a bare simulator used only to draw
+    initial states) and `sample_state(raw_env, seed)`, and call `_set_tasks` from `__init__`.
     """
 
     env_class: type[SuiteTaskEnv]
     config_class: type[SuiteConfig]
+    make_sampler_env: Callable[[str], Any]  # set with staticmethod(...)
+    sample_state: Callable[[Any, int], np.ndarray]
 
     def _checked_config(self, config: SuiteConfig) -> SuiteConfig:
         """The suite's own config class (a generic one is converted), checked, with a GL backend for pixels."""
@@ -272,17 +282,11 @@ class SuiteBase:
     def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
         self._check_task(task)
         if task not in self._samplers:
-            self._samplers[task] = self._sampler_env(task)
-        return self._sample(self._samplers[task], seed)
+            self._samplers[task] = type(self).make_sampler_env(task)
+        return type(self).sample_state(self._samplers[task], seed)
 
     def task_onehot(self, task: str) -> np.ndarray:
         return onehot(self._tasks, task)
-
-    def _sampler_env(self, task: str):
-        raise NotImplementedError
-
-    def _sample(self, raw_env, seed: int) -> np.ndarray:
-        raise NotImplementedError
 
     def _check_task(self, task: str) -> None:
         if task not in self._tasks:

@@ -31,7 +31,6 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.base import (
     SuiteConfig,
@@ -194,13 +193,8 @@ class FetchTaskEnv(SuiteTaskEnv):
             "environment_state": np.concatenate([full, np.asarray(raw["desired_goal"], np.float64), self._onehot]),
         }
         if self._pixels:
-            obs["pixels"] = {self._camera: np.ascontiguousarray(self._raw.render())}
+            obs["pixels"] = self._camera_image()
         return obs
-
-    def render(self):
-        """An RGB frame (image_size with `pixels_state`, else RENDER_SIZE), also for state-only envs."""
-        choose_gl_backend()
-        return np.ascontiguousarray(self._raw.render())
 
 
 class FetchSuite(SuiteBase):
@@ -214,11 +208,8 @@ class FetchSuite(SuiteBase):
     env_class = FetchTaskEnv
     config_class = FetchSuiteConfig
 
-    def _sampler_env(self, task: str):
-        return make_raw_env(task)
-
-    def _sample(self, raw_env, seed: int) -> np.ndarray:
-        return sample_state(raw_env, seed)
+    make_sampler_env = staticmethod(make_raw_env)
+    sample_state = staticmethod(sample_state)
 
     def __init__(self, config: SuiteConfig):
         config = self._checked_config(config)

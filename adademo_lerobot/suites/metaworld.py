@@ -202,11 +202,8 @@ class MetaWorldSuite(SuiteBase):
     env_class = MetaWorldTaskEnv
     config_class = MetaWorldSuiteConfig
 
-    def _sampler_env(self, task: str):
-        return make_raw_env(task)
-
-    def _sample(self, raw_env, seed: int) -> np.ndarray:
-        return sample_layout(raw_env, seed)
+    make_sampler_env = staticmethod(make_raw_env)
+    sample_state = staticmethod(sample_layout)
 
     def __init__(self, config: SuiteConfig):
         config = self._checked_config(config)
