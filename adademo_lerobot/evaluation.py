@@ -19,7 +19,7 @@ import pandas as pd
 import torch
 
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.suites.base import TaskSuite, derive_seed
+from adademo_lerobot.suites.base import TaskSuite, close_other_tasks, derive_seed
 
 
 @dataclass
@@ -98,6 +98,7 @@ class BatchedEvaluator:
         self.env_steps = 0
 
     def _vector_env(self, task: str, n: int) -> gym.vector.SyncVectorEnv:
+        close_other_tasks(self._envs, task, task_of=lambda key: key[0])  # rebuilding a batch takes < 1 s
         if (task, n) not in self._envs:
             self._envs[(task, n)] = gym.vector.SyncVectorEnv(
                 [lambda: self.suite.make_env(task, terminate_on_success=True) for _ in range(n)]

@@ -47,7 +47,10 @@ def test_batching_does_not_change_outcomes(act_run):
     suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))
     loaded = load_policy(act_run / "checkpoints" / "last" / "pretrained_model")
     seeds = evaluation_seeds(0, "reach-v3", 3)
-    batched = BatchedEvaluator(suite, loaded, batch_size=3).run("reach-v3", seeds)
+    evaluator = BatchedEvaluator(suite, loaded, batch_size=3)
+    batched = evaluator.run("reach-v3", seeds)
+    evaluator.run("push-v3", evaluation_seeds(0, "push-v3", 1))
+    assert list(evaluator._envs) == [("push-v3", 1)]  # the reach batch was closed: one task's envs at a time
     single = BatchedEvaluator(suite, loaded, batch_size=1).run("reach-v3", seeds)
     assert [(r.seed, r.success, r.steps) for r in batched] == [(r.seed, r.success, r.steps) for r in single]
     # Batched matmuls round differently in float32's last bits; returns agree to well under 0.1%.

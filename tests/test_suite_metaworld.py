@@ -63,6 +63,14 @@ def test_fast_sampling_and_restore_equal_metaworlds_own_reset_for_every_task():
             assert a[1] == b[1] and a[4]["success"] == b[4]["success"], task
 
 
+def test_only_the_current_tasks_sampler_env_is_kept_and_states_do_not_depend_on_it():
+    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))
+    first = suite.sample_initial_state("reach-v3", 3)
+    suite.sample_initial_state("push-v3", 3)
+    assert list(suite._samplers) == ["push-v3"]  # a MetaWorld env holds ~35 MB: one task at a time
+    np.testing.assert_array_equal(suite.sample_initial_state("reach-v3", 3), first)
+
+
 def test_pending_initial_state_for_vector_envs(suite):
     import gymnasium as gym
 

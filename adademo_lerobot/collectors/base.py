@@ -16,7 +16,7 @@ import numpy as np
 
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.recording import EpisodeRecorder
-from adademo_lerobot.suites.base import TaskSuite, derive_seed
+from adademo_lerobot.suites.base import TaskSuite, close_other_tasks, derive_seed
 
 
 @dataclass
@@ -91,6 +91,7 @@ class PolicyExpertCollector:
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]: ...
 
     def _env(self, task: str) -> EpisodeRecorder:
+        close_other_tasks(self._envs, task)
         if task not in self._envs:
             self._envs[task] = EpisodeRecorder(self.suite.make_env(task, terminate_on_success=False))
         return self._envs[task]

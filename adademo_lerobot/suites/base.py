@@ -236,6 +236,13 @@ class SuiteTaskEnv(gym.Env):
         return obs, float(reward), terminated, truncated, info
 
 
+def close_other_tasks(cache: dict, task: str, task_of=lambda key: key) -> None:
+    """Close and drop the cached simulators of tasks other than `task`. Callers work task by task, and a
+    MetaWorld env holds ~35 MB of model: a cache of every task's envs would cost GBs."""
+    for key in [k for k in cache if task_of(k) != task]:
+        cache.pop(key).close()
+
+
 def derive_seed(*keys: int | str) -> int:
     """A stable 63-bit seed from a tuple of ints and strings (strings hashed with CRC32, stable across runs)."""
     ints = [k if isinstance(k, int) else zlib.crc32(k.encode()) for k in keys]
@@ -281,6 +288,7 @@ class SuiteBase:
 
     def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
         self._check_task(task)
+        close_other_tasks(self._samplers, task)
         if task not in self._samplers:
             self._samplers[task] = type(self).make_sampler_env(task)
         return type(self).sample_state(self._samplers[task], seed)
