@@ -1,12 +1,14 @@
 """AdaDemo's data efficiency against Uniform and the ablations on MetaWorld (paper Table I, Fig. 1, Table III).
 
-    python benchmarks/data_efficiency.py --seeds 0 1 [--out ~/adademo-bench] [--aggregate_only]
+    python benchmarks/data_efficiency.py --seeds 0 1 [--out ~/adademo-bench] [--aggregate_only] [--uniform_3x]
 
 Per seed: a shared round 0 (`recipes/adademo.yaml` with --rounds=0: 10 scripted demos per task, ACT, fixed
 evaluation set of 50 initial states per task), then the four arms continue from copies of it, each for 3 rounds:
 adademo (A+B+C), ablation_ab (A+B), ablation_a (A), and uniform, whose per-round N_i is AdaDemo's average number of
 new demos per task in that round rounded up (the paper gives Uniform an equal or slightly larger budget). Every
 run is an `adademo-run` folder, so the whole benchmark resumes after an interruption (rerun the same command).
+With --uniform_3x a fifth arm gives Uniform three times AdaDemo's per-round budget: the paper's Fig. 1 compares
+against a Uniform that kept collecting until it plateaued, which an equal budget cannot show.
 Round 0 needs no sampler choice: with equal demos per task, trajectory- and task-uniform sampling coincide.
 
 Writes benchmarks/results/data_efficiency.md and data_efficiency.png.
@@ -33,8 +35,12 @@ ARMS = {  # arm -> recipe (strategy + sampler)
     "ablation_ab": "ablation_ab.yaml",
     "ablation_a": "ablation_a.yaml",
     "uniform": "uniform.yaml",
+    "uniform_3x": "uniform.yaml",  # optional (--uniform_3x)
 }
-LABELS = {"adademo": "AdaDemo (A+B+C)", "ablation_ab": "A+B", "ablation_a": "A", "uniform": "Uniform"}
+MAIN_ARMS = ["adademo", "ablation_ab", "ablation_a", "uniform"]
+LABELS = {"adademo": "AdaDemo (A+B+C)", "ablation_ab": "A+B", "ablation_a": "A", "uniform": "Uniform",
+          "uniform_3x": "Uniform, 3x budget"}
+BUDGET_FACTOR = {"uniform": 1, "uniform_3x": 3}  # x AdaDemo's mean new demos per task, per round
 
 
 def adademo_run(recipe: str, run_dir: Path, seed: int, *extra: str) -> None:
@@ -71,24 +77,35 @@ def branch_from_base(base: Path, arm_dir: Path, recipe: str, extra: list[str]) -
     tmp.rename(arm_dir)
 
 
-def uniform_budget(adademo_dir: Path, rounds: int) -> list[int]:
+def uniform_budget(adademo_dir: Path, rounds: int, factor: int) -> list[int]:
     from adademo_lerobot.ledger import read_ledger
 
     ledger = pd.DataFrame(read_ledger(adademo_dir / "dataset"))
-    return [math.ceil(ledger[ledger["round"] == r].demos_added.mean()) for r in range(1, rounds + 1)]
+    return [math.ceil(factor * ledger[ledger["round"] == r].demos_added.mean()) for r in range(1, rounds + 1)]
 
 
-def run_seed(out: Path, seed: int) -> None:
+def run_seed(out: Path, seed: int, arms: list[str]) -> None:
     base = out / f"seed{seed}" / "base"
     adademo_run("adademo.yaml", base, seed, "--rounds=0")
-    for arm in ("adademo", "ablation_ab", "ablation_a", "uniform"):
+    for arm in arms:
         arm_dir = out / f"seed{seed}" / arm
         extra = []
-        if arm == "uniform":
-            budget = uniform_budget(out / f"seed{seed}" / "adademo", 3)
+        if arm in BUDGET_FACTOR:
+            budget = uniform_budget(out / f"seed{seed}" / "adademo", 3, BUDGET_FACTOR[arm])
             extra.append(f"--demos_per_task=[{','.join(map(str, budget))}]")
         branch_from_base(base, arm_dir, ARMS[arm], extra)
         adademo_run(ARMS[arm], arm_dir, seed, *extra)
+
+
+def demos_to_reach(x: np.ndarray, y: np.ndarray, target: float) -> float | None:
+    """Average demos per task at which the curve (x, y) first reaches `target`, interpolated linearly."""
+    if y[0] >= target:
+        return float(x[0])
+    for k in range(1, len(x)):
+        if y[k] >= target:
+            frac = (target - y[k - 1]) / (y[k] - y[k - 1])
+            return float(x[k - 1] + frac * (x[k] - x[k - 1]))
+    return None
 
 
 def aggregate(out: Path, seeds: list[int]) -> None:
@@ -96,14 +113,17 @@ def aggregate(out: Path, seeds: list[int]) -> None:
 
     runs = {(arm, s): load_run(out / f"seed{s}" / arm) for arm in ARMS for s in seeds
             if (out / f"seed{s}" / arm / "eval").exists()}
-    complete = [s for s in seeds if all((arm, s) in runs and len(runs[(arm, s)].success.columns) == 4 for arm in ARMS)]
+    done = {arm: [s for s in seeds if (arm, s) in runs and len(runs[(arm, s)].success.columns) == 4] for arm in ARMS}
+    complete = [s for s in seeds if all(s in done[arm] for arm in MAIN_ARMS)]
     if not complete:
         sys.exit("no seed has all four arms through round 3 yet")
+    arms = MAIN_ARMS + [arm for arm in ARMS if arm not in MAIN_ARMS and done[arm]]
+    arm_seeds = {arm: complete if arm in MAIN_ARMS else done[arm] for arm in arms}
     tasks = runs[("adademo", complete[0])].tasks
     rows, curves = [], {}
-    for arm in ARMS:
-        sr = np.stack([runs[(arm, s)].success.loc[tasks].to_numpy() for s in complete])  # seed x task x round
-        demos = np.stack([runs[(arm, s)].demos.loc[tasks].to_numpy() for s in complete])
+    for arm in arms:
+        sr = np.stack([runs[(arm, s)].success.loc[tasks].to_numpy() for s in arm_seeds[arm]])  # seed x task x round
+        demos = np.stack([runs[(arm, s)].demos.loc[tasks].to_numpy() for s in arm_seeds[arm]])
         curves[arm] = (demos.mean(axis=(0, 1)), sr.mean(axis=1).mean(axis=0), sr.mean(axis=1).std(axis=0))
         for t, task in enumerate(tasks + ["average"]):
             vals = sr[:, t] if t < len(tasks) else sr.mean(axis=1)
@@ -111,30 +131,34 @@ def aggregate(out: Path, seeds: list[int]) -> None:
             rows.append({"arm": arm, "task": task,
                          **{f"r{r}": f"{100 * vals[:, r].mean():.0f} ± {100 * vals[:, r].std():.0f} ({d[:, r].mean():.0f})"
                             for r in range(4)}})
-    # Headline 1: demos AdaDemo needs to reach Uniform's final average SR (interpolated on AdaDemo's curve).
-    ux, uy, _ = curves["uniform"]
     ax_, ay, _ = curves["adademo"]
-    target, reached = uy[-1], None
-    for k in range(1, len(ax_)):
-        if ay[k] >= target:
-            lo = ay[k - 1]
-            frac = 1.0 if ay[k] == lo else (target - lo) / (ay[k] - lo)
-            reached = ax_[k - 1] + max(0.0, frac) * (ax_[k] - ax_[k - 1]) if lo < target else ax_[k - 1]
-            break
-    if ay[0] >= target:
-        reached = ax_[0]
+    headlines = []
+    # Headline 1: demos AdaDemo needs to reach a Uniform arm's final average SR (interpolated on AdaDemo's curve).
+    for arm in [a for a in arms if a in BUDGET_FACTOR]:
+        ux, uy, _ = curves[arm]
+        reached = demos_to_reach(ax_, ay, uy[-1])
+        headlines.append(f"- {LABELS[arm]} (seeds {arm_seeds[arm]}): final average SR {100 * uy[-1]:.1f}% with "
+                         f"{ux[-1]:.1f} demos per task. " + (
+            f"AdaDemo reaches it with {reached:.1f} demos per task: **{reached / ux[-1]:.2f}x** Uniform's demos "
+            f"(goal <= 1/3; the shared round 0 alone is {ax_[0] / ux[-1]:.2f}x)." if reached is not None else
+            f"AdaDemo does not reach it within its {ax_[-1]:.1f} demos per task (goal: <= 1/3 of Uniform's)."))
     # Headline 2: SR difference at (about) equal budget after round 3.
+    ux, uy, _ = curves["uniform"]
     diff = 100 * (ay[-1] - uy[-1])
+    headlines.append(f"- After round 3 at about equal budget: AdaDemo {100 * ay[-1]:.1f}% with {ax_[-1]:.1f} demos per "
+                     f"task vs Uniform {100 * uy[-1]:.1f}% with {ux[-1]:.1f}: **{diff:+.1f} points** (goal >= +5).")
     plot(curves, RESULTS / "data_efficiency.png")
     table = pd.DataFrame(rows)
+    flags = " --uniform_3x" if "uniform_3x" in arms else ""
     lines = [
         "# Data efficiency on MetaWorld: AdaDemo vs Uniform and the ablations",
         "",
-        f"Command: `python benchmarks/data_efficiency.py --seeds {' '.join(map(str, seeds))}`; {machine_line()}.",
-        f"Seeds with all arms complete: {complete}. Tasks: {', '.join(tasks)}. Recipes: `recipes/{{adademo,ablation_ab,"
-        "ablation_a,uniform}.yaml` (small state ACT, 10 initial demos per task, 3 rounds, E = 5/10/20, CAP = 20/40/80,",
-        "fine-tuning 800 steps per round), evaluated on the same 50 fixed initial states per task every round.",
-        "Uniform's N_i = AdaDemo's mean new demos per task in round i, rounded up.",
+        f"Command: `python benchmarks/data_efficiency.py --seeds {' '.join(map(str, seeds))}{flags}`; {machine_line()}.",
+        f"Seeds with the four main arms complete: {complete}. Tasks: {', '.join(tasks)}. Recipes: `recipes/{{adademo,"
+        "ablation_ab,ablation_a,uniform}.yaml` (small state ACT, 10 initial demos per task, 3 rounds, E = 5/10/20,",
+        "CAP = 20/40/80, fine-tuning 800 steps per round), evaluated on the same 50 fixed initial states per task every",
+        "round. Uniform's N_i = AdaDemo's mean new demos per task in round i, rounded up"
+        + (" (x3 for the 3x arm)." if "uniform_3x" in arms else "."),
         "",
         "Success rate % (mean ± std over seeds) and, in brackets, demos per task after each round:",
         "",
@@ -145,12 +169,7 @@ def aggregate(out: Path, seeds: list[int]) -> None:
         "",
         "![success vs demos](data_efficiency.png)",
         "",
-        f"- Uniform's final average SR: {100 * uy[-1]:.1f}% with {ux[-1]:.1f} demos per task.",
-        (f"- AdaDemo reaches it with {reached:.1f} demos per task: **{reached / ux[-1]:.2f}x** Uniform's demos "
-         "(goal <= 1/3)." if reached is not None else
-         f"- AdaDemo does not reach Uniform's final average SR within {ax_[-1]:.1f} demos per task (goal: <= 1/3 of Uniform's)."),
-        f"- After round 3: AdaDemo {100 * ay[-1]:.1f}% with {ax_[-1]:.1f} demos per task vs Uniform {100 * uy[-1]:.1f}% with "
-        f"{ux[-1]:.1f}: **{diff:+.1f} points** (goal >= +5).",
+        *headlines,
     ]
     (RESULTS / "data_efficiency.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
@@ -179,11 +198,12 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
     parser.add_argument("--aggregate_only", action="store_true")
+    parser.add_argument("--uniform_3x", action="store_true", help="also run Uniform with 3x AdaDemo's budget")
     args = parser.parse_args()
     start = time.time()
     if not args.aggregate_only:
         for seed in args.seeds:
-            run_seed(args.out, seed)
+            run_seed(args.out, seed, MAIN_ARMS + (["uniform_3x"] if args.uniform_3x else []))
     aggregate(args.out, args.seeds)
     print(f"total {time.time() - start:.0f} s")
 
