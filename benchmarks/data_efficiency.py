@@ -199,11 +199,14 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
     parser.add_argument("--aggregate_only", action="store_true")
     parser.add_argument("--uniform_3x", action="store_true", help="also run Uniform with 3x AdaDemo's budget")
+    parser.add_argument("--arms", nargs="+", choices=list(ARMS),
+                        help="run only these arms (e.g. two drivers on disjoint arms; uniform arms need adademo's ledger)")
     args = parser.parse_args()
     start = time.time()
     if not args.aggregate_only:
+        arms = args.arms or MAIN_ARMS + (["uniform_3x"] if args.uniform_3x else [])
         for seed in args.seeds:
-            run_seed(args.out, seed, MAIN_ARMS + (["uniform_3x"] if args.uniform_3x else []))
+            run_seed(args.out, seed, arms)
     aggregate(args.out, args.seeds)
     print(f"total {time.time() - start:.0f} s")
 
