@@ -81,6 +81,8 @@ def uniform_budget(adademo_dir: Path, rounds: int, factor: int) -> list[int]:
     from adademo_lerobot.ledger import read_ledger
 
     ledger = pd.DataFrame(read_ledger(adademo_dir / "dataset"))
+    if ledger.empty or not set(range(1, rounds + 1)) <= set(ledger["round"]):
+        sys.exit(f"{adademo_dir} has not finished its {rounds} rounds: Uniform's budget follows AdaDemo's (run it first)")
     return [math.ceil(factor * ledger[ledger["round"] == r].demos_added.mean()) for r in range(1, rounds + 1)]
 
 
