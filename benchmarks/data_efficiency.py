@@ -43,9 +43,12 @@ LABELS = {"adademo": "AdaDemo (A+B+C)", "ablation_ab": "A+B", "ablation_a": "A",
 BUDGET_FACTOR = {"uniform": 1, "uniform_3x": 3}  # x AdaDemo's mean new demos per task, per round
 
 
+TORCH_THREADS: list[str] = []  # --torch_threads: set when two drivers share the cores
+
+
 def adademo_run(recipe: str, run_dir: Path, seed: int, *extra: str) -> None:
     cmd = [str(BIN / "adademo-run"), f"--config_path={ROOT / 'recipes' / recipe}", f"--run_dir={run_dir}",
-           f"--seed={seed}", f"--train.seed={1000 + seed}", *extra]
+           f"--seed={seed}", f"--train.seed={1000 + seed}", *TORCH_THREADS, *extra]
     print("$", " ".join(cmd), flush=True)
     log = run_dir.parent / f"{run_dir.name}.log"
     run_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -203,7 +206,11 @@ def main() -> None:
     parser.add_argument("--uniform_3x", action="store_true", help="also run Uniform with 3x AdaDemo's budget")
     parser.add_argument("--arms", nargs="+", choices=list(ARMS),
                         help="run only these arms (e.g. two drivers on disjoint arms; uniform arms need adademo's ledger)")
+    parser.add_argument("--torch_threads", type=int,
+                        help="torch threads per run (default: the recipe's 2); use 1 when two drivers share 2 cores")
     args = parser.parse_args()
+    if args.torch_threads:
+        TORCH_THREADS.append(f"--train.torch_threads={args.torch_threads}")
     start = time.time()
     if not args.aggregate_only:
         arms = args.arms or MAIN_ARMS + (["uniform_3x"] if args.uniform_3x else [])
