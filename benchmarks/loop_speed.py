@@ -51,13 +51,12 @@ def eval_worker(seconds: float, seed: int, ckpt: str, q) -> None:
 
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS), max_episode_steps=200))
     evaluator = BatchedEvaluator(suite, load_policy(ckpt), batch_size=10)
-    for t in TASKS:  # warm-up: build every task's batch of envs and run the first inference outside the clock
-        evaluator.run(t, evaluation_seeds(seed, t, 10))
+    evaluator.run(TASKS[0], evaluation_seeds(seed, TASKS[0], 10))  # warm-up: first inference outside the clock
     evaluator.env_steps = 0
     start, k = time.perf_counter(), 0
     while time.perf_counter() - start < seconds:
-        for t in TASKS:
-            evaluator.run(t, evaluation_seeds(seed + 1000 * k, t, 10))
+        for t in TASKS:  # 50 episodes per task per call, as adademo-eval runs them (env batch built per task)
+            evaluator.run(t, evaluation_seeds(seed + 1000 * k, t, 50))
         k += 1
     q.put((evaluator.env_steps, time.perf_counter() - start))
 
@@ -111,8 +110,11 @@ def main() -> None:
         f"Command: `python benchmarks/loop_speed.py --seconds {args.seconds:g}`; {machine_line()}.",
         f"Tasks: {', '.join(TASKS)} (state observations, 200-step episodes). Raw = bare MetaWorld env with random",
         "actions. Eval = `BatchedEvaluator` (LeRobot `rollout()`, SyncVectorEnv of 10, small ACT from",
-        "`policies/act_state_cpu.yaml`, torch threads 1 per worker). Collection = MetaWorld scripted experts with",
-        "recording. Throughput summed over worker processes running at the same time.",
+        "`policies/act_state_cpu.yaml`, torch threads 1 per worker, 50 episodes per task per call as `adademo-eval`",
+        "runs them, building each task's batch of envs in the clock). Collection = MetaWorld scripted experts with",
+        "recording, one episode per task in turn. Throughput summed over worker processes running at the same time.",
+        "Raw resets the stock env every 200 steps; evaluation and collection episodes end at success (often after",
+        "50-100 steps), so they pay for a reset more often.",
         "",
         "| workers | raw steps/s | eval steps/s | eval / raw | collection steps/s | collection / raw |",
         "| --- | --- | --- | --- | --- | --- |",

@@ -63,11 +63,17 @@ def test_fast_sampling_and_restore_equal_metaworlds_own_reset_for_every_task():
             assert a[1] == b[1] and a[4]["success"] == b[4]["success"], task
 
 
-def test_only_the_current_tasks_sampler_env_is_kept_and_states_do_not_depend_on_it():
-    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))
+def test_sampler_envs_of_the_4_most_recent_tasks_are_kept_and_states_do_not_depend_on_them():
+    tasks = ["reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3"]
+    suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(tasks)))
     first = suite.sample_initial_state("reach-v3", 3)
-    suite.sample_initial_state("push-v3", 3)
-    assert list(suite._samplers) == ["push-v3"]  # a MetaWorld env holds ~35 MB: one task at a time
+    reach_env = suite._samplers["reach-v3"]
+    for task in tasks[1:4]:
+        suite.sample_initial_state(task, 3)
+    np.testing.assert_array_equal(suite.sample_initial_state("reach-v3", 3), first)
+    assert suite._samplers["reach-v3"] is reach_env  # reused, not rebuilt, while among the 4 most recent
+    suite.sample_initial_state("drawer-open-v3", 3)
+    assert list(suite._samplers) == ["pick-place-v3", "door-open-v3", "reach-v3", "drawer-open-v3"]  # push closed
     np.testing.assert_array_equal(suite.sample_initial_state("reach-v3", 3), first)
 
 

@@ -91,10 +91,13 @@ class PolicyExpertCollector:
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]: ...
 
     def _env(self, task: str) -> EpisodeRecorder:
-        close_other_tasks(self._envs, task)
-        if task not in self._envs:
-            self._envs[task] = EpisodeRecorder(self.suite.make_env(task, terminate_on_success=False))
-        return self._envs[task]
+        close_other_tasks(self._envs, task, keep=4)
+        if task in self._envs:
+            env = self._envs.pop(task)
+        else:
+            env = EpisodeRecorder(self.suite.make_env(task, terminate_on_success=False))
+        self._envs[task] = env  # most recently used last
+        return env
 
     def collect(self, task: str, initial_state: np.ndarray, seed: int) -> CollectionResult:
         env = self._env(task)

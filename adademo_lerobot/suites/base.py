@@ -236,10 +236,15 @@ class SuiteTaskEnv(gym.Env):
         return obs, float(reward), terminated, truncated, info
 
 
-def close_other_tasks(cache: dict, task: str, task_of=lambda key: key) -> None:
-    """Close and drop the cached simulators of tasks other than `task`. Callers work task by task, and a
-    MetaWorld env holds ~35 MB of model: a cache of every task's envs would cost GBs."""
-    for key in [k for k in cache if task_of(k) != task]:
+def close_other_tasks(cache: dict, task: str, keep: int = 1, task_of=lambda key: key) -> None:
+    """Close and drop cached simulators, keeping those of `task` and of the `keep - 1` tasks used most recently
+    before it (dict order is use order: callers re-insert on use). A MetaWorld env holds ~35 MB of model, so a
+    cache of every task's envs costs GBs; keeping a few tasks avoids rebuilding envs when callers alternate."""
+    recent: list[str] = [task]
+    for key in reversed(list(cache)):
+        if task_of(key) not in recent and len(recent) < keep:
+            recent.append(task_of(key))
+    for key in [k for k in cache if task_of(k) not in recent]:
         cache.pop(key).close()
 
 
@@ -288,10 +293,10 @@ class SuiteBase:
 
     def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
         self._check_task(task)
-        close_other_tasks(self._samplers, task)
-        if task not in self._samplers:
-            self._samplers[task] = type(self).make_sampler_env(task)
-        return type(self).sample_state(self._samplers[task], seed)
+        close_other_tasks(self._samplers, task, keep=4)
+        env = self._samplers.pop(task) if task in self._samplers else type(self).make_sampler_env(task)
+        self._samplers[task] = env  # most recently used last
+        return type(self).sample_state(env, seed)
 
     def task_onehot(self, task: str) -> np.ndarray:
         return onehot(self._tasks, task)
