@@ -7,7 +7,6 @@ exactly the state we asked for.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -19,7 +18,8 @@ import pandas as pd
 import torch
 
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.suites.base import TaskSuite, close_other_tasks, derive_seed
+from adademo_lerobot.patching import temporarily_set
+from adademo_lerobot.suites.base import TaskSuite, cached_for_task, derive_seed
 
 
 @dataclass
@@ -66,21 +66,12 @@ def evaluation_seeds(seed: int, task: str, n: int) -> list[int]:
     return [derive_seed(seed, "eval", task, k) for k in range(n)]
 
 
-@contextlib.contextmanager
 def _without_rollout_progress_bar():
     """LeRobot's rollout() draws a bar per batch of envs; ours count episodes instead (logs stay readable)."""
     import lerobot.scripts.lerobot_eval as lerobot_eval
 
     stock = lerobot_eval.trange
-
-    def silent_trange(*args, **kwargs):
-        return stock(*args, **{**kwargs, "disable": True})
-
-    lerobot_eval.trange = silent_trange
-    try:
-        yield
-    finally:
-        lerobot_eval.trange = stock
+    return temporarily_set(lerobot_eval, "trange", lambda *args, **kwargs: stock(*args, **{**kwargs, "disable": True}))
 
 
 class BatchedEvaluator:
@@ -98,13 +89,13 @@ class BatchedEvaluator:
         self.env_steps = 0
 
     def _vector_env(self, task: str, n: int) -> gym.vector.SyncVectorEnv:
-        close_other_tasks(self._envs, task, task_of=lambda key: key[0])  # rebuilding a batch takes < 1 s
-        if (task, n) not in self._envs:
-            self._envs[(task, n)] = gym.vector.SyncVectorEnv(
-                [lambda: self.suite.make_env(task, terminate_on_success=True) for _ in range(n)]
-            )
-            self._envs[(task, n)].set_attr("hold_after_episode", True)  # no simulation after an episode ends
-        return self._envs[(task, n)]
+        def make() -> gym.vector.SyncVectorEnv:
+            env = gym.vector.SyncVectorEnv([lambda: self.suite.make_env(task, terminate_on_success=True)] * n)
+            env.set_attr("hold_after_episode", True)  # no simulation after an episode ends
+            return env
+
+        # One task's batches at a time (10 envs of ~35 MB each); rebuilding a batch takes < 1 s.
+        return cached_for_task(self._envs, (task, n), make, keep=1, task_of=lambda key: key[0])
 
     def run(self, task: str, seeds: list[int], states: list[np.ndarray] | None = None) -> list[EpisodeRecord]:
         from lerobot.scripts.lerobot_eval import rollout

@@ -16,7 +16,7 @@ import numpy as np
 
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.recording import EpisodeRecorder
-from adademo_lerobot.suites.base import TaskSuite, close_other_tasks, derive_seed
+from adademo_lerobot.suites.base import TaskSuite, cached_for_task, derive_seed
 
 
 @dataclass
@@ -91,13 +91,9 @@ class PolicyExpertCollector:
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]: ...
 
     def _env(self, task: str) -> EpisodeRecorder:
-        close_other_tasks(self._envs, task, keep=4)
-        if task in self._envs:
-            env = self._envs.pop(task)
-        else:
-            env = EpisodeRecorder(self.suite.make_env(task, terminate_on_success=False))
-        self._envs[task] = env  # most recently used last
-        return env
+        return cached_for_task(
+            self._envs, task, lambda: EpisodeRecorder(self.suite.make_env(task, terminate_on_success=False)), keep=4
+        )
 
     def collect(self, task: str, initial_state: np.ndarray, seed: int) -> CollectionResult:
         env = self._env(task)

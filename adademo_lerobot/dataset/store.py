@@ -12,7 +12,6 @@ dataset on disk always holds exactly the committed episodes, and appending costs
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
@@ -28,6 +27,7 @@ import pyarrow.parquet as pq
 from adademo_lerobot.collectors.base import Demonstration
 from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.patching import temporarily_set
 from adademo_lerobot.suites.base import SuiteConfig, TaskSuite
 
 ADADEMO_DIR = "meta/adademo"
@@ -102,21 +102,11 @@ class LastEpisodeRow:
         return self.row
 
 
-@contextlib.contextmanager
-def _episode_rows_loaded_as_last_row_only():
+def _episode_rows_loaded_as_last_row_only(total_episodes: int):
     """Swap the `load_episodes` that LeRobotDataset's constructor calls for `LastEpisodeRow`, for one open."""
     import lerobot.datasets.lerobot_dataset as lerobot_dataset
 
-    stock = lerobot_dataset.load_episodes
-
-    def last_row_only(root: Path) -> LastEpisodeRow:
-        return LastEpisodeRow(root, json.loads((Path(root) / "meta" / "info.json").read_text())["total_episodes"])
-
-    lerobot_dataset.load_episodes = last_row_only
-    try:
-        yield
-    finally:
-        lerobot_dataset.load_episodes = stock
+    return temporarily_set(lerobot_dataset, "load_episodes", lambda root: LastEpisodeRow(root, total_episodes))
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -272,9 +262,9 @@ class DemoDataset:
         else:
             _begin_write(self.root)
             # Appending never reads frames: load only the last episode's frames and metadata row.
-            last = json.loads((self.root / "meta" / "info.json").read_text())["total_episodes"] - 1
-            with _episode_rows_loaded_as_last_row_only():
-                dataset = dataset_cls(self.repo_id, root=self.root, episodes=[last])
+            total = json.loads((self.root / "meta" / "info.json").read_text())["total_episodes"]
+            with _episode_rows_loaded_as_last_row_only(total):
+                dataset = dataset_cls(self.repo_id, root=self.root, episodes=[total - 1])
         # One "Map" bar per episode otherwise; disabled after opening, whose loader turns the bars back on.
         datasets.disable_progress_bars()
         indices = []

@@ -236,16 +236,19 @@ class SuiteTaskEnv(gym.Env):
         return obs, float(reward), terminated, truncated, info
 
 
-def close_other_tasks(cache: dict, task: str, keep: int = 1, task_of=lambda key: key) -> None:
-    """Close and drop cached simulators, keeping those of `task` and of the `keep - 1` tasks used most recently
-    before it (dict order is use order: callers re-insert on use). A MetaWorld env holds ~35 MB of model, so a
-    cache of every task's envs costs GBs; keeping a few tasks avoids rebuilding envs when callers alternate."""
-    recent: list[str] = [task]
-    for key in reversed(list(cache)):
-        if task_of(key) not in recent and len(recent) < keep:
-            recent.append(task_of(key))
-    for key in [k for k in cache if task_of(k) not in recent]:
-        cache.pop(key).close()
+def cached_for_task(cache: dict, key, make: Callable[[], Any], keep: int, task_of=lambda key: key):
+    """`cache[key]`, made on first use, keeping only the simulators of the `keep` most recently used tasks
+    (dict order is use order). A MetaWorld env holds ~35 MB of model, so a cache of every task's envs costs GBs;
+    keeping a few tasks avoids rebuilding envs when callers alternate between them."""
+    item = cache.pop(key) if key in cache else make()
+    cache[key] = item
+    recent: list[str] = []
+    for k in reversed(list(cache)):
+        if task_of(k) not in recent and len(recent) < keep:
+            recent.append(task_of(k))
+    for k in [k for k in cache if task_of(k) not in recent]:
+        cache.pop(k).close()
+    return item
 
 
 def derive_seed(*keys: int | str) -> int:
@@ -293,9 +296,7 @@ class SuiteBase:
 
     def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
         self._check_task(task)
-        close_other_tasks(self._samplers, task, keep=4)
-        env = self._samplers.pop(task) if task in self._samplers else type(self).make_sampler_env(task)
-        self._samplers[task] = env  # most recently used last
+        env = cached_for_task(self._samplers, task, lambda: type(self).make_sampler_env(task), keep=4)
         return type(self).sample_state(env, seed)
 
     def task_onehot(self, task: str) -> np.ndarray:

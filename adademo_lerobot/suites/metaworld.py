@@ -8,7 +8,6 @@ goal is part of the initial state the policy must condition on, and the scripted
 
 from __future__ import annotations
 
-import contextlib
 import warnings
 from dataclasses import dataclass
 from functools import cached_property
@@ -18,6 +17,7 @@ import numpy as np
 
 from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.patching import temporarily_set
 from adademo_lerobot.suites.base import (
     SuiteConfig,
     SuiteBase,
@@ -84,7 +84,6 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     return env
 
 
-@contextlib.contextmanager
 def hand_settling_skipped(raw_env):
     """MetaWorld's reset settles the hand with 50 physics steps per `reset_model()`; skip them, keeping the
     kinematics and `init_tcp` that reset code reads. They consume no randomness and touch no model field."""
@@ -93,11 +92,7 @@ def hand_settling_skipped(raw_env):
         mujoco.mj_forward(raw_env.model, raw_env.data)
         raw_env.init_tcp = raw_env.tcp_center
 
-    raw_env._reset_hand = kinematics_only
-    try:
-        yield
-    finally:
-        del raw_env._reset_hand
+    return temporarily_set(raw_env, "_reset_hand", kinematics_only)
 
 
 def sample_layout(raw_env, seed: int) -> np.ndarray:
@@ -130,7 +125,8 @@ def restore_layout(raw_env, layout: np.ndarray) -> np.ndarray:
     raw_env._freeze_rand_vec = True
     raw_env._did_see_sim_exception = False
     # MetaWorld's reset() runs reset_model() twice: the first pass only matters through the model fields it edits
-    # (mj_resetData then wipes its simulation), so it runs without hand settling; the second pass is the real one.
+    # (mj_resetData then wipes its simulation), so it runs without hand settling, on reset data so that those edits
+    # cannot depend on the previous episode; the second pass is the real one.
     # Same state as reset() (checked against it for every task in tests/test_suite_metaworld.py), half the cost.
     raw_env.curr_path_length = 0
     mujoco.mj_resetData(raw_env.model, raw_env.data)
