@@ -1,24 +1,14 @@
 """AdaDemo for LeRobot: grow imitation-learning datasets where the policy fails.
 
 The paper's Algorithm 1 lives in :mod:`adademo_lerobot.algorithm`; suites, experts, strategies and samplers are
-small classes behind the protocols in their folders.
+small classes behind the protocols in their folders. Importing the package is cheap: it checks the Python and
+LeRobot versions and picks a GL backend that loads; torch, LeRobot and the simulators are imported where used.
 """
 
-import os as _os
+from adademo_lerobot.gl import prefer_loadable_backend
+from adademo_lerobot.versions import check_supported_versions
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
-
-def choose_gl_backend() -> None:
-    """EGL needs a GPU; without one MuJoCo renders with OSMesa (apt-get install libosmesa6).
-
-    Must run before MuJoCo is imported (it reads MUJOCO_GL once). An explicit MUJOCO_GL always wins.
-    """
-    if "MUJOCO_GL" not in _os.environ:
-        gpu = _os.path.exists("/dev/nvidia0") or _os.path.exists("/dev/dri/renderD128")
-        backend = "egl" if gpu else "osmesa"
-        _os.environ["MUJOCO_GL"] = backend
-        _os.environ.setdefault("PYOPENGL_PLATFORM", backend)
-
-
-choose_gl_backend()
+check_supported_versions()
+prefer_loadable_backend()

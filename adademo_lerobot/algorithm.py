@@ -19,21 +19,22 @@ larger than the fewest episodes that could end the loop, so batching never evalu
 
 from __future__ import annotations
 
-from adademo_lerobot.ledger import TaskRoundRecord
-from adademo_lerobot.strategies.base import RoundContext
-from adademo_lerobot.suites.base import derive_seed
+from typing import TYPE_CHECKING
 
+from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.seeds import expansion_state_seed
 
-def expansion_state_seed(seed: int, round_index: int, task: str, k: int) -> int:
-    """The k-th initial state the loop samples for `task` in a round (line 8)."""
-    return derive_seed(seed, "expand", round_index, task, k)
+if TYPE_CHECKING:  # the strategies call this loop with their context; the loop needs only its interface
+    from adademo_lerobot.strategies.base import RoundContext
 
 
 def collect_on_failed_states(ctx: RoundContext, task: str, record: TaskRoundRecord) -> TaskRoundRecord:
-    E, CAP = ctx.target_successes, ctx.max_demos_per_task
+    E, CAP = ctx.target_successes, ctx.max_demos_per_task  # noqa: N806  (the paper's names)
     c, k = 0, 0  # successes so far, initial states sampled so far
     while c < E and record.demos_added < CAP and k < ctx.max_eval_episodes_per_task:
-        batch_size = min(ctx.evaluator.batch_size, E - c, CAP - record.demos_added, ctx.max_eval_episodes_per_task - k)
+        batch_size = min(
+            ctx.evaluator.batch_size, E - c, CAP - record.demos_added, ctx.max_eval_episodes_per_task - k
+        )
         seeds = [expansion_state_seed(ctx.seed, ctx.round_index, task, k + j) for j in range(batch_size)]
         for outcome in ctx.evaluate(task, seeds):  # line 9: evaluate pi on s
             k += 1

@@ -7,11 +7,15 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from adademo_lerobot.collectors.base import ExpertCollector
+from adademo_lerobot.collectors import ExpertCollector, make_collector
+from adademo_lerobot.dataset.check import check_dataset_integrity
+from adademo_lerobot.dataset.metadata import check_same_suite, has_dataset, load_suite_config
 from adademo_lerobot.dataset.store import DemoDataset
-from adademo_lerobot.ledger import TaskRoundRecord
-from adademo_lerobot.strategies.base import RoundContext, fresh_state_seed  # noqa: F401  (re-exported)
-from adademo_lerobot.suites.base import TaskSuite
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.strategies.base import RoundContext
+from adademo_lerobot.suites import TaskSuite, make_suite
+from adademo_lerobot.tables import table
 
 
 def collect_fresh(
@@ -39,8 +43,16 @@ def collect_fresh(
             bar.set_postfix(task=task, expert_failures=record.expert_failures, refresh=False)
             bar.refresh()
 
-        ctx = RoundContext(suite, dataset, collector, round_index, seed, source, commit_every=commit_every,
-                           on_progress=progress)
+        ctx = RoundContext(
+            suite,
+            dataset,
+            collector,
+            round_index,
+            seed,
+            source,
+            commit_every=commit_every,
+            on_progress=progress,
+        )
         for task, wanted in demos_per_task.items():
             started = time.perf_counter()
             record = ctx.new_record(task, source)
@@ -54,12 +66,11 @@ def collect_fresh(
 
 
 def format_collection_table(records: dict[str, TaskRoundRecord]) -> str:
-    rows = [("task", "demos", "expert failures", "env steps")]
-    for r in records.values():
-        rows.append((r.task, f"{r.demos_added}/{r.demos_per_task}", str(r.expert_failures), str(r.collection_env_steps)))
-    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths)) for row in rows]
-    lines.insert(1, "  ".join("-" * w for w in widths))
+    rows = [
+        (r.task, f"{r.demos_added}/{r.demos_per_task}", r.expert_failures, r.collection_env_steps)
+        for r in records.values()
+    ]
+    lines = [table(["task", "demos", "expert failures", "env steps"], rows)]
     for r in records.values():
         if r.demos_added < r.demos_per_task:
             lines.append(
@@ -71,11 +82,6 @@ def format_collection_table(records: dict[str, TaskRoundRecord]) -> str:
 
 def run_collect(cfg) -> dict[str, TaskRoundRecord]:
     """`adademo-collect`: the initial dataset (round 0, source `initial`)."""
-    from adademo_lerobot.collectors.base import make_collector
-    from adademo_lerobot.dataset.store import load_suite_config
-    from adademo_lerobot.errors import AdaDemoError
-    from adademo_lerobot.suites.base import make_suite
-
     # Validate everything before touching the disk.
     if cfg.dataset.root is None:
         raise AdaDemoError("--dataset.root is required (the folder of the LeRobot dataset to create)")
@@ -84,28 +90,25 @@ def run_collect(cfg) -> dict[str, TaskRoundRecord]:
     suite = make_suite(cfg.suite)
     collector = make_collector(cfg.collector, suite)
     root = Path(cfg.dataset.root)
-    exists = (root / "meta" / "info.json").exists()
-    if exists and cfg.resume:
-        dataset = DemoDataset.open(cfg.dataset.repo_id, root)
+    if has_dataset(root) and cfg.resume:
         check_same_suite(load_suite_config(root), suite.config)
+        dataset = DemoDataset.open(cfg.dataset.repo_id, root)
+        check_dataset_integrity(root)
     else:
         DemoDataset.check_new_root(root)
         dataset = DemoDataset(cfg.dataset.repo_id, root, suite.config)
     start = time.perf_counter()
     summaries = collect_fresh(
-        suite, collector, dataset, {t: cfg.episodes_per_task for t in suite.tasks}, cfg.seed,
-        round_index=0, source="initial", commit_every=cfg.commit_every, desc="initial demos",
+        suite,
+        collector,
+        dataset,
+        dict.fromkeys(suite.tasks, cfg.episodes_per_task),
+        cfg.seed,
+        round_index=0,
+        source="initial",
+        commit_every=cfg.commit_every,
+        desc="initial demos",
     )
     print(format_collection_table(summaries))
     print(f"dataset: {root} ({time.perf_counter() - start:.1f} s)")
     return summaries
-
-
-def check_same_suite(stored, requested) -> None:
-    from adademo_lerobot.errors import AdaDemoError
-
-    a, b = stored.to_dict(), requested.to_dict()
-    diffs = [f"{k}: dataset has {a.get(k)!r}, command has {b.get(k)!r}" for k in sorted(set(a) | set(b))
-             if a.get(k) != b.get(k)]
-    if diffs:
-        raise AdaDemoError("the dataset was collected with another suite configuration (" + "; ".join(diffs) + ")")

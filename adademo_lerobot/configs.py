@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from adademo_lerobot.collectors.base import CollectorConfig, ScriptedCollectorConfig
-from adademo_lerobot.suites.base import SuiteConfig
-from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
+from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
+from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
 
 
 @dataclass
@@ -87,3 +86,25 @@ class ExpandConfig:
     device: str = "cpu"
     torch_threads: int = 2
     commit_every: int = 10
+
+
+@dataclass
+class PushConfig:
+    # The local adademo dataset (--dataset.root; --dataset.repo_id is not used for the push).
+    dataset: DatasetArgs = field(default_factory=DatasetArgs)
+    # Target repo on the hub: USER/NAME (or ORG/NAME).
+    repo_id: str | None = None
+    # Create the repo private (applies when the push creates it; an existing repo keeps its visibility).
+    private: bool = False
+    # Push to this branch (created from main if missing) instead of main.
+    branch: str | None = None
+    # License identifier written to the card.
+    license: str = "apache-2.0"
+
+
+@dataclass
+class ReportConfig:
+    run_dir: str | None = None
+    # More run folders to compare against (e.g. the uniform and ablation arms).
+    compare: list[str] = field(default_factory=list)
+    output_dir: str | None = None

@@ -9,61 +9,19 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import pandas as pd
-import torch
 
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.patching import temporarily_set
-from adademo_lerobot.suites.base import TaskSuite, cached_for_task, derive_seed
-
-
-@dataclass
-class EpisodeRecord:
-    task: str
-    seed: int
-    initial_state: list[float]
-    success: bool
-    steps: int
-    sum_reward: float
-
-
-@dataclass
-class LoadedPolicy:
-    policy: torch.nn.Module
-    preprocessor: object
-    postprocessor: object
-    config: object
-    path: Path
-
-
-def load_policy(path: str | Path, device: str = "cpu") -> LoadedPolicy:
-    """Any LeRobot ACT/Diffusion checkpoint folder (`.../pretrained_model`), ours or stock `lerobot-train`'s."""
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
-
-    path = Path(path)
-    if not (path / "config.json").exists() or not (path / "model.safetensors").exists():
-        raise AdaDemoError(f"no LeRobot checkpoint at {path} (expected config.json and model.safetensors; "
-                           "pass the .../checkpoints/last/pretrained_model folder)")
-    cfg = PreTrainedConfig.from_pretrained(path)
-    cfg.device = device
-    cfg.pretrained_path = path
-    policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
-    policy.eval()
-    pre, post = make_pre_post_processors(
-        cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": device}}
-    )
-    return LoadedPolicy(policy, pre, post, cfg, path)
-
-
-def evaluation_seeds(seed: int, task: str, n: int) -> list[int]:
-    """The fixed evaluation set: never used for collection (collection seeds use another derivation key)."""
-    return [derive_seed(seed, "eval", task, k) for k in range(n)]
+from adademo_lerobot.policy import LoadedPolicy
+from adademo_lerobot.records import EpisodeRecord
+from adademo_lerobot.seeds import evaluation_seeds
+from adademo_lerobot.suites.base import TaskSuite, cached_for_task
+from adademo_lerobot.tables import table
 
 
 def _without_rollout_progress_bar():
@@ -71,7 +29,9 @@ def _without_rollout_progress_bar():
     import lerobot.scripts.lerobot_eval as lerobot_eval
 
     stock = lerobot_eval.trange
-    return temporarily_set(lerobot_eval, "trange", lambda *args, **kwargs: stock(*args, **{**kwargs, "disable": True}))
+    return temporarily_set(
+        lerobot_eval, "trange", lambda *args, **kwargs: stock(*args, **{**kwargs, "disable": True})
+    )
 
 
 class BatchedEvaluator:
@@ -85,11 +45,13 @@ class BatchedEvaluator:
         self.suite, self.loaded, self.batch_size = suite, loaded, batch_size
         self.progress = progress  # an optional tqdm bar advanced by one per finished episode
         self._identity = PolicyProcessorPipeline(steps=[])
-        self._envs: dict[tuple[str, int], gym.vector.SyncVectorEnv] = {}
+        self._envs: dict[tuple[str, int], object] = {}  # (task, batch size) -> gymnasium SyncVectorEnv
         self.env_steps = 0
 
-    def _vector_env(self, task: str, n: int) -> gym.vector.SyncVectorEnv:
-        def make() -> gym.vector.SyncVectorEnv:
+    def _vector_env(self, task: str, n: int):
+        import gymnasium as gym
+
+        def make():
             env = gym.vector.SyncVectorEnv([lambda: self.suite.make_env(task, terminate_on_success=True)] * n)
             env.set_attr("hold_after_episode", True)  # no simulation after an episode ends
             return env
@@ -97,27 +59,45 @@ class BatchedEvaluator:
         # One task's batches at a time (10 envs of ~35 MB each); rebuilding a batch takes < 1 s.
         return cached_for_task(self._envs, (task, n), make, keep=1, task_of=lambda key: key[0])
 
-    def run(self, task: str, seeds: list[int], states: list[np.ndarray] | None = None) -> list[EpisodeRecord]:
+    def run(self, task: str, seeds: list[int]) -> list[EpisodeRecord]:
+        """One episode per seed, from that seed's initial state, in `batch_size` batches; records in seed order."""
+        import torch
         from lerobot.scripts.lerobot_eval import rollout
 
-        if states is None:
-            states = [self.suite.sample_initial_state(task, s) for s in seeds]
+        states = [self.suite.sample_initial_state(task, s) for s in seeds]
         records: list[EpisodeRecord] = []
         for begin in range(0, len(seeds), self.batch_size):
-            batch_seeds, batch_states = seeds[begin : begin + self.batch_size], states[begin : begin + self.batch_size]
+            batch_seeds, batch_states = (
+                seeds[begin : begin + self.batch_size],
+                states[begin : begin + self.batch_size],
+            )
             env = self._vector_env(task, len(batch_seeds))
             env.set_attr("pending_initial_state", [np.asarray(s, dtype=np.float64) for s in batch_states])
             with torch.inference_mode(), _without_rollout_progress_bar():
-                out = rollout(env, self.loaded.policy, self._identity, self._identity,
-                              self.loaded.preprocessor, self.loaded.postprocessor)
+                out = rollout(
+                    env,
+                    self.loaded.policy,
+                    self._identity,
+                    self._identity,
+                    self.loaded.preprocessor,
+                    self.loaded.postprocessor,
+                )
             done = out["done"].numpy()
             success = out["success"].numpy()
             reward = out["reward"].numpy()
-            for i, (s, st) in enumerate(zip(batch_seeds, batch_states)):
+            for i, (s, st) in enumerate(zip(batch_seeds, batch_states, strict=True)):
                 steps = int(np.argmax(done[i]) + 1) if done[i].any() else done.shape[1]
                 self.env_steps += steps
-                records.append(EpisodeRecord(task, int(s), np.asarray(st, np.float64).tolist(),
-                                             bool(success[i, :steps].any()), steps, float(reward[i, :steps].sum())))
+                records.append(
+                    EpisodeRecord(
+                        task,
+                        int(s),
+                        np.asarray(st, np.float64).tolist(),
+                        bool(success[i, :steps].any()),
+                        steps,
+                        float(reward[i, :steps].sum()),
+                    )
+                )
             if self.progress is not None:
                 self.progress.update(len(batch_seeds))
                 self.progress.set_postfix(task=task, success=f"{np.mean([r.success for r in records]):.0%}")
@@ -128,13 +108,16 @@ class BatchedEvaluator:
             env.close()
 
 
-def evaluate_fixed_set(suite: TaskSuite, loaded: LoadedPolicy, seed: int, episodes_per_task: int,
-                       batch_size: int) -> tuple[list[EpisodeRecord], int, float]:
+def evaluate_fixed_set(
+    suite: TaskSuite, loaded: LoadedPolicy, seed: int, episodes_per_task: int, batch_size: int
+) -> tuple[list[EpisodeRecord], int, float]:
     """Every task on its fixed evaluation states, with one progress bar over episodes.
     Returns (records, env steps, wall seconds)."""
     from tqdm import tqdm
 
-    bar = tqdm(total=len(suite.tasks) * episodes_per_task, desc="evaluating", unit="episode", dynamic_ncols=True)
+    bar = tqdm(
+        total=len(suite.tasks) * episodes_per_task, desc="evaluating", unit="episode", dynamic_ncols=True
+    )
     evaluator = BatchedEvaluator(suite, loaded, batch_size, progress=bar)
     start = time.perf_counter()
     records: list[EpisodeRecord] = []
@@ -150,35 +133,54 @@ def success_table(records: list[EpisodeRecord], tasks: list[str]) -> pd.DataFram
     rows = []
     for task in tasks:
         sub = df[df.task == task]
-        rows.append({"task": task, "episodes": len(sub), "successes": int(sub.success.sum()),
-                     "success_rate": float(sub.success.mean()) if len(sub) else float("nan"),
-                     "mean_steps": float(sub.steps.mean()) if len(sub) else float("nan")})
+        rows.append(
+            {
+                "task": task,
+                "episodes": len(sub),
+                "successes": int(sub.success.sum()),
+                "success_rate": float(sub.success.mean()) if len(sub) else float("nan"),
+                "mean_steps": float(sub.steps.mean()) if len(sub) else float("nan"),
+            }
+        )
     table = pd.DataFrame(rows)
-    avg = {"task": "average", "episodes": int(table.episodes.sum()), "successes": int(table.successes.sum()),
-           "success_rate": float(table.success_rate.mean()), "mean_steps": float(df.steps.mean())}
+    avg = {
+        "task": "average",
+        "episodes": int(table.episodes.sum()),
+        "successes": int(table.successes.sum()),
+        "success_rate": float(table.success_rate.mean()),
+        "mean_steps": float(df.steps.mean()),
+    }
     return pd.concat([table, pd.DataFrame([avg])], ignore_index=True)
 
 
-def format_success_table(table: pd.DataFrame) -> str:
-    lines = [f"{'task':<28} {'success':>9} {'rate':>7} {'steps':>7}", "-" * 54]
-    for _, r in table.iterrows():
-        lines.append(f"{r.task:<28} {r.successes:>4}/{r.episodes:<4} {100 * r.success_rate:>6.1f}% {r.mean_steps:>7.1f}")
-    return "\n".join(lines)
+def format_success_table(success: pd.DataFrame) -> str:
+    rows = [
+        (r.task, f"{r.successes}/{r.episodes}", f"{100 * r.success_rate:.1f}%", f"{r.mean_steps:.1f}")
+        for r in success.itertuples()
+    ]
+    return table(["task", "success", "rate", "mean steps"], rows)
 
 
-def write_eval_outputs(output_dir: Path, records: list[EpisodeRecord], table: pd.DataFrame, meta: dict) -> None:
+def write_eval_outputs(
+    output_dir: Path, records: list[EpisodeRecord], success: pd.DataFrame, meta: dict
+) -> None:
+    """`eval_episodes.parquet` and `eval_summary.json`, each written whole (the summary last: it marks done)."""
+    from adademo_lerobot.files import atomic_write_text
+
     output_dir.mkdir(parents=True, exist_ok=True)
-    pd.DataFrame([asdict(r) for r in records]).to_parquet(output_dir / "eval_episodes.parquet")
-    summary = {**meta, "per_task": table.to_dict(orient="records")}
-    (output_dir / "eval_summary.json").write_text(json.dumps(summary, indent=2))
+    tmp = output_dir / ".eval_episodes.parquet.tmp"
+    pd.DataFrame([asdict(r) for r in records]).to_parquet(tmp)
+    tmp.replace(output_dir / "eval_episodes.parquet")
+    summary = {**meta, "per_task": success.to_dict(orient="records")}
+    atomic_write_text(output_dir / "eval_summary.json", json.dumps(summary, indent=2))
 
 
 def run_eval(cfg) -> pd.DataFrame:
     """`adademo-eval`."""
     from adademo_lerobot.dataset.features import dataset_features
-    from adademo_lerobot.dataset.store import load_suite_config
-    from adademo_lerobot.suites.base import make_suite
-    from adademo_lerobot.train import check_policy_matches_dataset
+    from adademo_lerobot.dataset.metadata import load_suite_config
+    from adademo_lerobot.policy import load_checked_policy
+    from adademo_lerobot.suites import make_suite
 
     if cfg.policy.path is None:
         raise AdaDemoError("--policy.path is required (a LeRobot checkpoint's pretrained_model folder)")
@@ -186,18 +188,31 @@ def run_eval(cfg) -> pd.DataFrame:
         raise AdaDemoError(f"--episodes_per_task must be >= 1, got {cfg.episodes_per_task}")
     if cfg.output_dir is None:
         raise AdaDemoError("--output_dir is required")
-    suite_cfg = load_suite_config(Path(cfg.dataset.root)) if cfg.dataset.root else cfg.suite
-    suite = make_suite(suite_cfg)
+    suite = make_suite(load_suite_config(Path(cfg.dataset.root)) if cfg.dataset.root else cfg.suite)
+    import torch
+
     torch.set_num_threads(cfg.torch_threads)
-    loaded = load_policy(cfg.policy.path, cfg.device)
-    check_policy_matches_dataset(loaded.config, dataset_features(suite))
-    records, env_steps, elapsed = evaluate_fixed_set(suite, loaded, cfg.seed, cfg.episodes_per_task,
-                                                     cfg.eval.batch_size)
-    table = success_table(records, suite.tasks)
-    print(format_success_table(table))
-    write_eval_outputs(Path(cfg.output_dir), records, table, {
-        "policy_path": str(cfg.policy.path), "seed": cfg.seed, "episodes_per_task": cfg.episodes_per_task,
-        "env_steps": env_steps, "wall_seconds": elapsed, "suite": suite.config.to_dict()})
-    print(f"{env_steps} env steps in {elapsed:.1f} s ({env_steps / max(elapsed, 1e-9):.0f} steps/s); "
-          f"records: {Path(cfg.output_dir) / 'eval_episodes.parquet'}")
-    return table
+    loaded = load_checked_policy(cfg.policy.path, dataset_features(suite), cfg.device)
+    records, env_steps, elapsed = evaluate_fixed_set(
+        suite, loaded, cfg.seed, cfg.episodes_per_task, cfg.eval.batch_size
+    )
+    success = success_table(records, suite.tasks)
+    print(format_success_table(success))
+    write_eval_outputs(
+        Path(cfg.output_dir),
+        records,
+        success,
+        {
+            "policy_path": str(cfg.policy.path),
+            "seed": cfg.seed,
+            "episodes_per_task": cfg.episodes_per_task,
+            "env_steps": env_steps,
+            "wall_seconds": elapsed,
+            "suite": suite.config.to_dict(),
+        },
+    )
+    print(
+        f"{env_steps} env steps in {elapsed:.1f} s ({env_steps / max(elapsed, 1e-9):.0f} steps/s); "
+        f"records: {Path(cfg.output_dir) / 'eval_episodes.parquet'}"
+    )
+    return success

@@ -3,6 +3,9 @@
 Everything the round decides is journaled before it acts (see `ledger.py`), every dataset append is a
 transaction (see `dataset/store.py`), so `kill -9` at any moment followed by the same command finishes the
 same round: no initial state gets two demonstrations in a round and the ledger matches the dataset.
+
+The round number is decided once (`next_round`, or given by `adademo-run`) and passed down; a journal left by a
+kill between the ledger write and the journal's end is finished, never mistaken for the round in progress.
 """
 
 from __future__ import annotations
@@ -10,124 +13,209 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import torch
 from tqdm import tqdm
 
-from adademo_lerobot.collectors.base import make_collector
+from adademo_lerobot.collectors import make_collector
+from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.features import dataset_features
-from adademo_lerobot.dataset.store import COL_ROUND, DemoDataset, load_suite_config, read_episode_metadata
+from adademo_lerobot.dataset.layout import COL_ROUND
+from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
+from adademo_lerobot.dataset.store import DemoDataset, recover_interrupted_write
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.evaluation import BatchedEvaluator, load_policy
-from adademo_lerobot.ledger import RoundJournal, TaskRoundRecord, append_ledger, read_ledger
+from adademo_lerobot.ledger import RoundJournal, append_ledger, ledger_rounds
+from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies import make_strategy, planned_demos
 from adademo_lerobot.strategies.base import RoundContext
-from adademo_lerobot.strategies.task_only import plan_state_seeds
-from adademo_lerobot.suites.base import make_suite
+from adademo_lerobot.strategies.task_only import estimate_success
+from adademo_lerobot.suites import make_suite
+from adademo_lerobot.tables import table
 
 
 def validate(cfg) -> None:
     make_strategy(cfg.strategy)
-    for flag, value in (("target_successes", cfg.target_successes), ("max_demos_per_task", cfg.max_demos_per_task),
-                        ("demos_per_task", cfg.demos_per_task), ("plan_episodes_per_task", cfg.plan_episodes_per_task)):
+    for flag, value in (
+        ("target_successes", cfg.target_successes),
+        ("max_demos_per_task", cfg.max_demos_per_task),
+        ("demos_per_task", cfg.demos_per_task),
+        ("plan_episodes_per_task", cfg.plan_episodes_per_task),
+    ):
         if value < 1:
             raise AdaDemoError(f"--{flag} must be >= 1, got {value}")
     if cfg.max_eval_episodes_per_task is not None and cfg.max_eval_episodes_per_task < 1:
         raise AdaDemoError(f"--max_eval_episodes_per_task must be >= 1, got {cfg.max_eval_episodes_per_task}")
     if cfg.dataset.root is None:
         raise AdaDemoError("--dataset.root is required (an adademo dataset made by adademo-collect)")
-    if not (Path(cfg.dataset.root) / "meta" / "info.json").exists():
+    if not has_dataset(cfg.dataset.root):
         raise AdaDemoError(f"no LeRobot dataset at {cfg.dataset.root}; create one with adademo-collect")
 
 
 def next_round(root: Path) -> int:
-    """The round in progress (journaled), else one past the last round in the ledger or the dataset."""
-    in_progress = RoundJournal.in_progress(root)
-    if in_progress:
-        return in_progress[0]
+    """The round in progress (journaled and not in the ledger), else one past the last round of the ledger or
+    the dataset. Reads only."""
+    done = ledger_rounds(root)
+    unfinished = [r for r in RoundJournal.in_progress(root) if r not in done]
+    if unfinished:
+        return unfinished[0]
     eps = read_episode_metadata(root)
-    ledger_rounds = [r["round"] for r in read_ledger(root)]
-    last = max([0, *ledger_rounds, *(eps[COL_ROUND].tolist() if len(eps) else [])])
-    return last + 1
+    return max([0, *done, *(eps[COL_ROUND].tolist() if len(eps) else [])]) + 1
+
+
+def finish_stale_journals(root: Path) -> None:
+    """A kill between the ledger write and the journal's end leaves a journal of a complete round: archive it."""
+    done = ledger_rounds(root)
+    for r in RoundJournal.in_progress(root):
+        if r in done:
+            RoundJournal(root, r).finish()
 
 
 def format_round_table(records: list[TaskRoundRecord]) -> str:
-    lines = [f"{'task':<26} {'eval':>5} {'SR':>6} {'demos':>6} {'expert fail':>11} {'cap':>4} {'eval steps':>10} "
-             f"{'collect steps':>13}", "-" * 90]
-    for r in records:
+    def row(r: TaskRoundRecord):
         sr = f"{100 * r.success_rate:.0f}%" if r.success_rate is not None else "-"
-        lines.append(f"{r.task:<26} {r.eval_episodes:>5} {sr:>6} {r.demos_added:>6} {r.expert_failures:>11} "
-                     f"{'yes' if r.cap_hit else '':>4} {r.eval_env_steps:>10} {r.collection_env_steps:>13}")
-    lines.append(f"{'total':<26} {sum(r.eval_episodes for r in records):>5} {'':>6} "
-                 f"{sum(r.demos_added for r in records):>6} {sum(r.expert_failures for r in records):>11} {'':>4} "
-                 f"{sum(r.eval_env_steps for r in records):>10} {sum(r.collection_env_steps for r in records):>13}")
-    return "\n".join(lines)
+        return (
+            r.task,
+            r.eval_episodes,
+            sr,
+            r.demos_added,
+            r.expert_failures,
+            "yes" if r.cap_hit else "",
+            r.eval_env_steps,
+            r.collection_env_steps,
+        )
+
+    rows = [row(r) for r in records]
+    rows.append(
+        (
+            "total",
+            sum(r.eval_episodes for r in records),
+            "",
+            sum(r.demos_added for r in records),
+            sum(r.expert_failures for r in records),
+            "",
+            sum(r.eval_env_steps for r in records),
+            sum(r.collection_env_steps for r in records),
+        )
+    )
+    return table(["task", "eval", "SR", "demos", "expert fail", "cap", "eval steps", "collect steps"], rows)
 
 
-def plan(cfg, suite, evaluator: BatchedEvaluator, round_index: int) -> list[dict]:
+def plan(cfg, suite, ctx: RoundContext) -> list[dict]:
     """Evaluate and predict each task's demos without collecting (price a round before paying for it)."""
     rows = []
     for task in tqdm(suite.tasks, desc="planning", unit="task", dynamic_ncols=True):
-        outcomes = evaluator.run(task, plan_state_seeds(cfg.seed, round_index, task, cfg.plan_episodes_per_task))
-        sr = sum(o.success for o in outcomes) / len(outcomes)
-        rows.append({"task": task, "episodes": len(outcomes), "successes": sum(o.success for o in outcomes),
-                     "success_rate": sr, "predicted_demos": planned_demos(cfg.target_successes, sr, cfg.max_demos_per_task)})
-    print(f"plan for round {round_index} (E={cfg.target_successes}, CAP={cfg.max_demos_per_task}); nothing collected")
-    print(f"{'task':<26} {'success':>9} {'SR':>6} {'predicted demos':>16}")
-    for r in rows:
-        print(f"{r['task']:<26} {r['successes']:>4}/{r['episodes']:<4} {100 * r['success_rate']:>5.0f}% {r['predicted_demos']:>16}")
-    print(f"{'total':<26} {'':>9} {'':>6} {sum(r['predicted_demos'] for r in rows):>16}   "
-          f"({evaluator.env_steps} evaluation env steps)")
+        record = ctx.new_record(task, "plan")
+        sr = estimate_success(ctx, task, record)
+        rows.append(
+            {
+                "task": task,
+                "episodes": record.eval_episodes,
+                "successes": record.successes,
+                "success_rate": sr,
+                "predicted_demos": planned_demos(cfg.target_successes, sr, cfg.max_demos_per_task),
+            }
+        )
+    print(
+        f"plan for round {ctx.round_index} (E={cfg.target_successes}, CAP={cfg.max_demos_per_task}); nothing collected"
+    )
+    body = [
+        (
+            r["task"],
+            f"{r['successes']}/{r['episodes']}",
+            f"{100 * r['success_rate']:.0f}%",
+            r["predicted_demos"],
+        )
+        for r in rows
+    ]
+    body.append(("total", "", "", sum(r["predicted_demos"] for r in rows)))
+    print(table(["task", "success", "SR", "predicted demos"], body))
+    print(f"({ctx.evaluator.env_steps} evaluation env steps)")
     return rows
 
 
-def run_expand(cfg) -> list[TaskRoundRecord] | list[dict]:
+def run_expand(cfg, round_index: int | None = None) -> list[TaskRoundRecord] | list[dict]:
+    """One round. `round_index` is given by adademo-run (its one truth); alone, the command finds the next one."""
     validate(cfg)
     root = Path(cfg.dataset.root)
-    suite = make_suite(load_suite_config(root))
-    read_episode_metadata(root)  # fails clearly on a dataset without adademo columns
     strategy = make_strategy(cfg.strategy)
     needs_policy = strategy.needs_policy or cfg.plan_only
+    if needs_policy and cfg.policy.path is None:
+        raise AdaDemoError(f"--strategy={cfg.strategy} evaluates a policy: pass --policy.path=CKPT")
+    if not cfg.plan_only:
+        recover_interrupted_write(root)  # a write a kill left half-done is ours to roll back
+    check_dataset_integrity(root)  # refuse a damaged dataset before anything is written
+    suite = make_suite(load_suite_config(root))
     loaded = None
     if needs_policy:
-        if cfg.policy.path is None:
-            raise AdaDemoError(f"--strategy={cfg.strategy} evaluates a policy: pass --policy.path=CKPT")
+        import torch
+
+        from adademo_lerobot.policy import load_checked_policy
+
         torch.set_num_threads(cfg.torch_threads)
-        loaded = load_policy(cfg.policy.path, cfg.device)
-        from adademo_lerobot.train import check_policy_matches_dataset
-
-        check_policy_matches_dataset(loaded.config, dataset_features(suite))
+        loaded = load_checked_policy(cfg.policy.path, dataset_features(suite), cfg.device)
     collector = make_collector(cfg.collector, suite)
-    evaluator = BatchedEvaluator(suite, loaded, cfg.eval.batch_size) if loaded else None
+    evaluator = None
+    if loaded:
+        from adademo_lerobot.evaluation import BatchedEvaluator
 
-    dataset = DemoDataset.open(cfg.dataset.repo_id, root)  # rolls back a write a kill left half-done
-    round_index = next_round(root)
-    if cfg.plan_only:
-        return plan(cfg, suite, evaluator, round_index)
+        evaluator = BatchedEvaluator(suite, loaded, cfg.eval.batch_size)
+    dataset = (
+        DemoDataset.open(cfg.dataset.repo_id, root)
+        if not cfg.plan_only
+        else DemoDataset(cfg.dataset.repo_id, root, suite.config)
+    )
 
-    journal = RoundJournal(root, round_index)
-    if journal.exists() and any(r["round"] == round_index for r in read_ledger(root)):
-        journal.finish()  # killed after the ledger was written: the round is complete
-        print(f"round {round_index} was already complete; run the command again for another round")
-        return []
+    if round_index is None:
+        round_index = next_round(root)
     max_eval = cfg.max_eval_episodes_per_task or 2 * (cfg.target_successes + cfg.max_demos_per_task)
-    journal.start({
-        "strategy": cfg.strategy, "target_successes": cfg.target_successes,
-        "max_demos_per_task": cfg.max_demos_per_task, "demos_per_task": cfg.demos_per_task,
-        "plan_episodes_per_task": cfg.plan_episodes_per_task, "max_eval_episodes_per_task": max_eval,
-        "seed": cfg.seed, "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
-    })
+    settings = {
+        "target_successes": cfg.target_successes,
+        "max_demos_per_task": cfg.max_demos_per_task,
+        "demos_per_task": cfg.demos_per_task,
+        "max_eval_episodes_per_task": max_eval,
+        "plan_episodes_per_task": cfg.plan_episodes_per_task,
+        "commit_every": cfg.commit_every,
+        "policy_path": str(cfg.policy.path) if needs_policy else None,
+    }
+    if cfg.plan_only:
+        ctx = RoundContext(
+            suite, dataset, collector, round_index, cfg.seed, source="plan", evaluator=evaluator, **settings
+        )
+        return plan(cfg, suite, ctx)
+
+    finish_stale_journals(root)
+    if round_index in ledger_rounds(root):
+        print(f"round {round_index} is already complete (meta/adademo/rounds.jsonl)")
+        return []
+    journal = RoundJournal(root, round_index)
+    journal.start(
+        {
+            "strategy": cfg.strategy,
+            "target_successes": cfg.target_successes,
+            "max_demos_per_task": cfg.max_demos_per_task,
+            "demos_per_task": cfg.demos_per_task,
+            "plan_episodes_per_task": cfg.plan_episodes_per_task,
+            "max_eval_episodes_per_task": max_eval,
+            "seed": cfg.seed,
+            "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
+        }
+    )
     bar = tqdm(suite.tasks, desc=f"round {round_index} ({cfg.strategy})", unit="task", dynamic_ncols=True)
 
     def progress(task: str, record: TaskRoundRecord) -> None:
-        bar.set_postfix(task=task, evals=record.eval_episodes, ok=record.successes, demos=record.demos_added,
-                        refresh=True)
+        bar.set_postfix(
+            task=task, evals=record.eval_episodes, ok=record.successes, demos=record.demos_added, refresh=True
+        )
 
     ctx = RoundContext(
-        suite, dataset, collector, round_index, cfg.seed, source=cfg.strategy, evaluator=evaluator, journal=journal,
-        target_successes=cfg.target_successes, max_demos_per_task=cfg.max_demos_per_task,
-        demos_per_task=cfg.demos_per_task, max_eval_episodes_per_task=max_eval,
-        plan_episodes_per_task=cfg.plan_episodes_per_task, commit_every=cfg.commit_every,
-        policy_path=str(cfg.policy.path) if needs_policy else None, on_progress=progress,
+        suite,
+        dataset,
+        collector,
+        round_index,
+        cfg.seed,
+        source=cfg.strategy,
+        evaluator=evaluator,
+        journal=journal,
+        on_progress=progress,
+        **settings,
     )
     records = []
     for task in bar:
@@ -140,6 +228,7 @@ def run_expand(cfg) -> list[TaskRoundRecord] | list[dict]:
     bar.close()
     check_ledger_matches_dataset(root, round_index, records)
     append_ledger(root, records)
+    _after_ledger_written()
     journal.finish()
     if evaluator:
         evaluator.close()
@@ -148,10 +237,21 @@ def run_expand(cfg) -> list[TaskRoundRecord] | list[dict]:
     return records
 
 
+def _after_ledger_written() -> None:
+    """The point between the ledger write and the journal's end (a kill here must not lose the next round).
+    Tests set ADADEMO_TEST_KILL_AFTER_LEDGER=1 to die exactly here."""
+    import os
+
+    if os.environ.get("ADADEMO_TEST_KILL_AFTER_LEDGER") == "1":
+        os.kill(os.getpid(), 9)
+
+
 def check_ledger_matches_dataset(root: Path, round_index: int, records: list[TaskRoundRecord]) -> None:
     eps = read_episode_metadata(root)
     counts = eps[eps[COL_ROUND] == round_index].groupby("task").size()
     for r in records:
         if int(counts.get(r.task, 0)) != r.demos_added:
-            raise RuntimeError(f"internal error: round {round_index} {r.task}: ledger {r.demos_added} demos, "
-                               f"dataset {int(counts.get(r.task, 0))}")
+            raise RuntimeError(
+                f"internal error: round {round_index} {r.task}: ledger {r.demos_added} demos, "
+                f"dataset {int(counts.get(r.task, 0))}"
+            )

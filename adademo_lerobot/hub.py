@@ -7,7 +7,7 @@ table and the meaning of the `adademo/*` columns; everything else on the card (Y
 data_files config, info.json) is LeRobot's, so stock tooling still recognises the dataset.
 
 The hub is whatever `HF_ENDPOINT` names when the process starts (huggingface_hub reads it at import).
-huggingface_hub 0.35.3's `RepoCard.validate` (called by the card push inside `push_to_hub`) posts to a hardcoded
+huggingface_hub 1.x's `RepoCard.validate` (called by the card push inside `push_to_hub`) posts to a hardcoded
 `https://huggingface.co/api/validate-yaml` whatever the endpoint; with another endpoint (a private hub, a mirror,
 the tests' local double) we send that one request to the configured endpoint instead (`_card_validation_on_endpoint`).
 """
@@ -18,21 +18,21 @@ import contextlib
 import json
 import logging
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-from adademo_lerobot.configs import DatasetArgs
-from adademo_lerobot.dataset.store import (
+from adademo_lerobot.configs import PushConfig
+from adademo_lerobot.dataset.layout import (
     ADADEMO_DIR,
     COL_ROUND,
     COL_SOURCE,
+    LEDGER_FILE,
     SUITE_FILE,
     TXN_FILE,
-    load_suite_config,
-    read_episode_metadata,
 )
+from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.ledger import LEDGER_FILE, RoundJournal, read_ledger
+from adademo_lerobot.ledger import RoundJournal, read_ledger
 
 log = logging.getLogger(__name__)
 
@@ -45,11 +45,11 @@ REPO_ID_RE = re.compile(rf"{_NAME}/{_NAME}")
 STRATEGY_DESCRIPTIONS = {
     "initial": "initial collection: expert demonstrations from random initial states (round 0)",
     "adademo": "AdaDemo (principles A+B): evaluate the policy per task and collect an expert demonstration from "
-               "each initial state it fails, until E successes or CAP demonstrations per task",
+    "each initial state it fails, until E successes or CAP demonstrations per task",
     "uniform": "Uniform (the paper's baseline): N new demonstrations per task from fresh random initial states, "
-               "no policy involved",
+    "no policy involved",
     "task_only": "task_only (ablation A): N_k = E/SR_k - E demonstrations per task (capped at CAP) from fresh "
-                 "random initial states, SR_k measured on a policy evaluation",
+    "random initial states, SR_k measured on a policy evaluation",
 }
 
 COLUMN_DESCRIPTIONS = {
@@ -62,24 +62,15 @@ COLUMN_DESCRIPTIONS = {
 }
 
 
-@dataclass
-class PushConfig:
-    # The local adademo dataset (--dataset.root; --dataset.repo_id is not used for the push).
-    dataset: DatasetArgs = field(default_factory=DatasetArgs)
-    # Target repo on the hub: USER/NAME (or ORG/NAME).
-    repo_id: str | None = None
-    # Create the repo private (applies when the push creates it; an existing repo keeps its visibility).
-    private: bool = False
-    # Push to this branch (created from main if missing) instead of main.
-    branch: str | None = None
-    # License identifier written to the card.
-    license: str = "apache-2.0"
-
-
 def validate(cfg: PushConfig) -> Path:
     if cfg.repo_id is None:
         raise AdaDemoError("--repo_id is required: the hub repo to push to, as USER/NAME")
-    if not REPO_ID_RE.fullmatch(cfg.repo_id) or ".." in cfg.repo_id or "--" in cfg.repo_id or len(cfg.repo_id) > 96:
+    if (
+        not REPO_ID_RE.fullmatch(cfg.repo_id)
+        or ".." in cfg.repo_id
+        or "--" in cfg.repo_id
+        or len(cfg.repo_id) > 96
+    ):
         raise AdaDemoError(
             f"--repo_id={cfg.repo_id!r} is not a hub repo id: use USER/NAME (letters, digits, '-', '_', '.'; "
             "no '--' or '..')"
@@ -89,7 +80,7 @@ def validate(cfg: PushConfig) -> Path:
     if cfg.dataset.root is None:
         raise AdaDemoError("--dataset.root is required (an adademo dataset made by adademo-collect)")
     root = Path(cfg.dataset.root)
-    if not (root / "meta" / "info.json").exists():
+    if not has_dataset(root):
         raise AdaDemoError(f"no LeRobot dataset at {root} (missing meta/info.json)")
     load_suite_config(root)  # refuses a dataset that is not an adademo dataset
     if (root / TXN_FILE).exists():
@@ -119,6 +110,7 @@ def resolve_token() -> str:
 
 
 # ---- the card ------------------------------------------------------------------------------------------------
+
 
 @dataclass
 class RoundSummary:
@@ -155,15 +147,21 @@ def summarize_rounds(root: Path, tasks: list[str]) -> list[RoundSummary]:
         new = eps[eps[COL_ROUND] == rnd]
         records = [r for r in ledger if r["round"] == rnd]
         strategies = sorted({r["strategy"] for r in records} or set(new[COL_SOURCE]))
-        out.append(RoundSummary(
-            round=rnd,
-            strategies=strategies,
-            settings=_settings(records),
-            demos={t: int((new["task"] == t).sum()) for t in tasks},
-            evals={r["task"]: (int(r["successes"]), int(r["eval_episodes"])) for r in records if r.get("eval_episodes")},
-            total_after=int((eps[COL_ROUND] <= rnd).sum()),
-            in_ledger=bool(records),
-        ))
+        out.append(
+            RoundSummary(
+                round=rnd,
+                strategies=strategies,
+                settings=_settings(records),
+                demos={t: int((new["task"] == t).sum()) for t in tasks},
+                evals={
+                    r["task"]: (int(r["successes"]), int(r["eval_episodes"]))
+                    for r in records
+                    if r.get("eval_episodes")
+                },
+                total_after=int((eps[COL_ROUND] <= rnd).sum()),
+                in_ledger=bool(records),
+            )
+        )
     return out
 
 
@@ -217,12 +215,16 @@ def adademo_card_section(root: str | Path, max_task_columns: int = MAX_TASK_COLU
             "Per task: demonstrations the round added / the policy's success rate on that round's evaluation "
             "episodes (`–`: the round evaluated no policy on that task).",
             "",
-            "| round | strategy | " + " | ".join(f"{t}: demos / eval SR" for t in tasks) + " | episodes after round |",
+            "| round | strategy | "
+            + " | ".join(f"{t}: demos / eval SR" for t in tasks)
+            + " | episodes after round |",
             "| ---: | --- | " + " | ".join("---" for _ in tasks) + " | ---: |",
         ]
         for s in rounds:
             cells = [f"+{s.demos[t]} / {_sr(s.evals.get(t))}" for t in tasks]
-            lines.append(f"| {s.round} | {_strategy_cell(s)} | " + " | ".join(cells) + f" | {s.total_after} |")
+            lines.append(
+                f"| {s.round} | {_strategy_cell(s)} | " + " | ".join(cells) + f" | {s.total_after} |"
+            )
     else:
         lines += [
             "| round | strategy | demos added | eval SR (all tasks) | episodes after round |",
@@ -230,8 +232,10 @@ def adademo_card_section(root: str | Path, max_task_columns: int = MAX_TASK_COLU
         ]
         for s in rounds:
             total = (sum(v[0] for v in s.evals.values()), sum(v[1] for v in s.evals.values()))
-            lines.append(f"| {s.round} | {_strategy_cell(s)} | +{sum(s.demos.values())} | "
-                         f"{_sr(total if total[1] else None)} | {s.total_after} |")
+            lines.append(
+                f"| {s.round} | {_strategy_cell(s)} | +{sum(s.demos.values())} | "
+                f"{_sr(total if total[1] else None)} | {s.total_after} |"
+            )
         lines += [
             "",
             "Per task (`–`: no policy evaluation on that task in that round):",
@@ -270,34 +274,40 @@ HARDCODED_CARD_VALIDATION_URL = "https://huggingface.co/api/validate-yaml"
 
 @contextlib.contextmanager
 def _card_validation_on_endpoint():
-    """Send `RepoCard.validate`'s request to HF_ENDPOINT (it ignores it) while the push runs, then restore."""
-    from huggingface_hub import configure_http_backend, constants
+    """Send `RepoCard.validate`'s request to HF_ENDPOINT (it ignores it) while the push runs, then restore.
+
+    Uses huggingface_hub's public `set_client_factory`: the client the current factory builds (huggingface_hub's
+    default one, or whatever the user configured: proxies from HTTPS_PROXY/NO_PROXY, certificates) gets one more
+    request hook, which points that one URL at the endpoint; every other request is left alone. (A custom
+    transport would not do: httpx ignores the proxy environment variables for a client given a transport.)"""
+    import httpx
+    from huggingface_hub import constants, set_client_factory
     from huggingface_hub.utils import _http
-    from requests.adapters import HTTPAdapter
 
     endpoint = constants.ENDPOINT.rstrip("/")
     if endpoint == "https://huggingface.co":
         yield
         return
-    target = f"{endpoint}/api/validate-yaml"
+    target = httpx.URL(f"{endpoint}/api/validate-yaml")
 
-    class ToEndpoint(HTTPAdapter):
-        def send(self, request, *args, **kwargs):
+    def to_endpoint(request: httpx.Request) -> None:
+        # Request hooks run before httpx picks the transport (and proxy) for the URL, so the new URL decides.
+        if str(request.url) == HARDCODED_CARD_VALIDATION_URL:
             request.url = target
-            return super().send(request, *args, **kwargs)
+            request.headers["Host"] = target.netloc.decode("ascii")
 
-    previous = getattr(_http, "_GLOBAL_BACKEND_FACTORY", None) or _http.requests.Session
+    previous = _http._GLOBAL_CLIENT_FACTORY
 
-    def factory():
-        session = previous()
-        session.mount(HARDCODED_CARD_VALIDATION_URL, ToEndpoint())
-        return session
+    def factory() -> httpx.Client:
+        client = previous()
+        client.event_hooks = {**client.event_hooks, "request": [to_endpoint, *client.event_hooks["request"]]}
+        return client
 
-    configure_http_backend(backend_factory=factory)
+    set_client_factory(factory)
     try:
         yield
     finally:
-        configure_http_backend(backend_factory=previous)
+        set_client_factory(previous)
 
 
 def _hub_error(err: Exception, repo_id: str) -> AdaDemoError:
@@ -319,7 +329,7 @@ def run_push(cfg: PushConfig) -> str:
     suite = load_suite_config(root)
     section = adademo_card_section(root)
 
-    import requests
+    import httpx
     from huggingface_hub import HfApi, constants
     from huggingface_hub.errors import HfHubHTTPError
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -333,8 +343,11 @@ def run_push(cfg: PushConfig) -> str:
             # repo does not have yet; created here first, the branch starts from main.
             api.create_repo(cfg.repo_id, repo_type="dataset", private=cfg.private, exist_ok=True)
             if api.repo_info(cfg.repo_id, repo_type="dataset").private != cfg.private:
-                log.warning("%s already exists and is %s; --private only applies when the repo is created",
-                            cfg.repo_id, "private" if not cfg.private else "public")
+                log.warning(
+                    "%s already exists and is %s; --private only applies when the repo is created",
+                    cfg.repo_id,
+                    "private" if not cfg.private else "public",
+                )
             if branch:
                 api.create_branch(cfg.repo_id, branch=branch, repo_type="dataset", exist_ok=True)
             dataset.push_to_hub(
@@ -346,10 +359,12 @@ def run_push(cfg: PushConfig) -> str:
             )
     except HfHubHTTPError as err:
         raise _hub_error(err, cfg.repo_id) from None
-    except requests.ConnectionError as err:
+    except (httpx.TransportError, ConnectionError) as err:
         raise AdaDemoError(f"cannot reach the hub at {constants.ENDPOINT}: {type(err).__name__}") from None
 
     url = f"{constants.ENDPOINT}/datasets/{cfg.repo_id}" + (f"/tree/{branch}" if branch else "")
-    print(f"pushed {dataset.meta.total_episodes} episodes ({len(summarize_rounds(root, []))} rounds) "
-          f"with the adademo card to {url}")
+    print(
+        f"pushed {dataset.meta.total_episodes} episodes ({len(summarize_rounds(root, []))} rounds) "
+        f"with the adademo card to {url}"
+    )
     return url

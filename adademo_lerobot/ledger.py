@@ -7,54 +7,31 @@
   every evaluation outcome, every expert failure). Rerunning an interrupted round replays it instead of
   re-evaluating, so the round continues exactly where it stopped. Once the ledger is written it is kept as
   `meta/adademo/round-NNN-evaluations.jsonl`: the record of which initial states the policy failed.
+
+The journal is read once and then kept in memory (appends go to both), so a round's bookkeeping costs O(1) per
+evaluation however long the round.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from collections import defaultdict
+from dataclasses import asdict
 from pathlib import Path
 
-from adademo_lerobot.dataset.store import ADADEMO_DIR, atomic_write_text
+from adademo_lerobot.dataset.layout import ADADEMO_DIR, LEDGER_FILE
 from adademo_lerobot.errors import AdaDemoError
-
-LEDGER_FILE = f"{ADADEMO_DIR}/rounds.jsonl"
-
-
-@dataclass
-class TaskRoundRecord:
-    round: int
-    task: str
-    strategy: str
-    target_successes: int | None
-    max_demos_per_task: int | None
-    demos_per_task: int | None
-    policy_path: str | None
-    eval_episodes: int = 0  # episodes the strategy consumed (Algorithm 1's evaluations)
-    eval_episodes_run: int = 0  # including a batch's overshoot past the stopping point (real cost)
-    successes: int = 0
-    failures: int = 0
-    demos_added: int = 0
-    expert_failures: int = 0
-    cap_hit: bool = False
-    eval_bound_hit: bool = False
-    planned_demos: int | None = None  # task_only: N_k = E/SR_k - E (capped)
-    eval_env_steps: int = 0
-    collection_env_steps: int = 0
-    wall_seconds: float = 0.0
-    expert_failed_states: list[dict] = field(default_factory=list)
-
-    @property
-    def success_rate(self) -> float | None:
-        return self.successes / self.eval_episodes if self.eval_episodes else None
+from adademo_lerobot.files import append_json_lines, atomic_write_text, read_json_lines
+from adademo_lerobot.records import TaskRoundRecord
 
 
 def read_ledger(root: Path) -> list[dict]:
-    path = Path(root) / LEDGER_FILE
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return read_json_lines(Path(root) / LEDGER_FILE)
+
+
+def ledger_rounds(root: Path) -> set[int]:
+    return {int(r["round"]) for r in read_ledger(root)}
 
 
 def append_ledger(root: Path, records: list[TaskRoundRecord]) -> None:
@@ -69,35 +46,48 @@ def append_ledger(root: Path, records: list[TaskRoundRecord]) -> None:
 
 
 class RoundJournal:
+    """The journal of one round. Entries: `start` (settings), `eval` (one evaluation outcome), `expert_failure`,
+    `time` (seconds spent on a task), and whatever a strategy records for itself (e.g. `plan`)."""
+
     def __init__(self, root: Path, round_index: int):
         self.path = Path(root) / ADADEMO_DIR / f"journal-round-{round_index:03d}.jsonl"
         self.round_index = round_index
+        self._entries: list[dict] | None = None
+        self._evals: dict[str, dict[int, dict]] = defaultdict(dict)
+        self._expert_failures: dict[str, dict[int, dict]] = defaultdict(dict)
+        self._seconds: dict[str, float] = defaultdict(float)
 
     @staticmethod
     def in_progress(root: Path) -> list[int]:
-        return sorted(int(p.stem.split("-")[-1]) for p in (Path(root) / ADADEMO_DIR).glob("journal-round-*.jsonl"))
+        return sorted(
+            int(p.stem.split("-")[-1]) for p in (Path(root) / ADADEMO_DIR).glob("journal-round-*.jsonl")
+        )
 
     def exists(self) -> bool:
         return self.path.exists()
 
+    def _index(self, entry: dict) -> None:
+        kind = entry.get("type")
+        if kind == "eval":
+            self._evals[entry["task"]][entry["seed"]] = entry
+        elif kind == "expert_failure":
+            self._expert_failures[entry["task"]][entry["seed"]] = entry
+        elif kind == "time":
+            self._seconds[entry["task"]] += entry["seconds"]
+
     def entries(self) -> list[dict]:
-        if not self.path.exists():
-            return []
-        out = []
-        for line in self.path.read_text().splitlines():
-            try:
-                out.append(json.loads(line))
-            except json.JSONDecodeError:
-                break  # a line torn by a kill: everything before it is intact
-        return out
+        if self._entries is None:
+            self._entries = read_json_lines(self.path)
+            for entry in self._entries:
+                self._index(entry)
+        return self._entries
 
     def append(self, *entries: dict) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "a") as f:
-            for e in entries:
-                f.write(json.dumps(e) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        self.entries()  # loaded before the first append, so memory and file stay the same
+        append_json_lines(self.path, list(entries))
+        for entry in entries:
+            self._entries.append(entry)
+            self._index(entry)
 
     def start(self, settings: dict) -> None:
         """Begin the round, or check that a resumed round uses the same settings."""
@@ -115,13 +105,19 @@ class RoundJournal:
             )
 
     def evaluations(self, task: str) -> dict[int, dict]:
-        return {e["seed"]: e for e in self.entries() if e["type"] == "eval" and e["task"] == task}
+        self.entries()
+        return self._evals[task]
 
     def expert_failures(self, task: str) -> dict[int, dict]:
-        return {e["seed"]: e for e in self.entries() if e["type"] == "expert_failure" and e["task"] == task}
+        self.entries()
+        return self._expert_failures[task]
 
     def seconds(self, task: str) -> float:
-        return sum(e["seconds"] for e in self.entries() if e["type"] == "time" and e["task"] == task)
+        self.entries()
+        return self._seconds[task]
+
+    def of_type(self, kind: str) -> list[dict]:
+        return [e for e in self.entries() if e.get("type") == kind]
 
     @property
     def archive_path(self) -> Path:
@@ -134,9 +130,7 @@ class RoundJournal:
 
 
 def read_round_evaluations(root: Path, round_index: int) -> list[dict]:
-    """Every evaluation outcome and expert failure of a finished round."""
+    """Every evaluation outcome and expert failure of a finished (or running) round."""
     journal = RoundJournal(root, round_index)
     path = journal.archive_path if journal.archive_path.exists() else journal.path
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return read_json_lines(path)

@@ -9,14 +9,16 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-OBS_STATE = "observation.state"
-OBS_ENV_STATE = "observation.environment_state"
-OBS_IMAGES = "observation.images"
-ACTION = "action"
-
 
 def frame_from_observation(observation: dict, action: np.ndarray) -> dict:
     """One LeRobot frame (without the task string) from an env observation and the action taken in it."""
+    from lerobot.utils.constants import (
+        ACTION,
+        OBS_ENV_STATE,
+        OBS_IMAGES,
+        OBS_STATE,
+    )  # imports torch: here, once
+
     frame = {  # copies: nothing that later touches the observation can change a recorded frame
         OBS_STATE: np.array(observation["agent_pos"], dtype=np.float32, copy=True),
         OBS_ENV_STATE: np.array(observation["environment_state"], dtype=np.float32, copy=True),
@@ -44,7 +46,9 @@ class EpisodeRecorder(gym.Wrapper):
         return obs, info
 
     def step(self, action):
-        executed = np.clip(np.asarray(action, dtype=np.float32), self.action_space.low, self.action_space.high)
+        executed = np.clip(
+            np.asarray(action, dtype=np.float32), self.action_space.low, self.action_space.high
+        )
         self.frames.append(frame_from_observation(self._last_obs, executed))
         obs, reward, terminated, truncated, info = self.env.step(executed)
         self.succeeded |= bool(info.get("is_success", False))

@@ -8,7 +8,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -17,7 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from adademo_lerobot.dataset.store import read_episode_metadata  # noqa: E402
+from adademo_lerobot.configs import ReportConfig  # noqa: E402
+from adademo_lerobot.dataset.metadata import read_episode_metadata  # noqa: E402
 from adademo_lerobot.errors import AdaDemoError  # noqa: E402
 from adademo_lerobot.ledger import read_ledger  # noqa: E402
 
@@ -47,11 +48,19 @@ def load_run(run_dir: Path) -> RunResults:
         raise AdaDemoError(f"{run_dir} has no evaluation results yet (eval/round-*/eval_summary.json)")
     eps = read_episode_metadata(run_dir / "dataset")
     rounds = sorted(success)
-    demos = pd.DataFrame({r: [int(((eps.task == t) & (eps["adademo/round"] <= r)).sum()) for t in tasks]
-                          for r in rounds}, index=tasks)
+    demos = pd.DataFrame(
+        {r: [int(((eps.task == t) & (eps["adademo/round"] <= r)).sum()) for t in tasks] for r in rounds},
+        index=tasks,
+    )
     label = f"{settings['strategy']} + {settings['sampler']} sampler"
-    return RunResults(run_dir.name, label, tasks, pd.DataFrame(success).loc[tasks + ["average"], rounds], demos,
-                      pd.DataFrame(read_ledger(run_dir / "dataset")))
+    return RunResults(
+        run_dir.name,
+        label,
+        tasks,
+        pd.DataFrame(success).loc[tasks + ["average"], rounds],
+        demos,
+        pd.DataFrame(read_ledger(run_dir / "dataset")),
+    )
 
 
 def _pct(x: float) -> str:
@@ -63,17 +72,30 @@ def markdown_tables(run: RunResults) -> str:
     head = "| task | " + " | ".join(f"round {r}: SR % (demos)" for r in rounds) + " |"
     lines = [f"### {run.name} — {run.label}", "", head, "|" + " --- |" * (len(rounds) + 1)]
     for t in run.tasks:
-        lines.append(f"| {t} | " + " | ".join(f"{_pct(run.success.loc[t, r])} ({run.demos.loc[t, r]})" for r in rounds) + " |")
-    lines.append("| **average** | " + " | ".join(
-        f"**{_pct(run.success.loc['average', r])}** ({run.demos[r].mean():.1f})" for r in rounds) + " |")
+        lines.append(
+            f"| {t} | "
+            + " | ".join(f"{_pct(run.success.loc[t, r])} ({run.demos.loc[t, r]})" for r in rounds)
+            + " |"
+        )
+    lines.append(
+        "| **average** | "
+        + " | ".join(f"**{_pct(run.success.loc['average', r])}** ({run.demos[r].mean():.1f})" for r in rounds)
+        + " |"
+    )
     if len(run.ledger):
-        lines += ["", "Expansion rounds (from the ledger):", "",
-                  "| round | strategy | demos added | eval episodes | eval env steps | collection env steps | expert failures | tasks at CAP |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines += [
+            "",
+            "Expansion rounds (from the ledger):",
+            "",
+            "| round | strategy | demos added | eval episodes | eval env steps | collection env steps | expert failures | tasks at CAP |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
         for r, g in run.ledger.groupby("round"):
-            lines.append(f"| {r} | {g.strategy.iloc[0]} | {g.demos_added.sum()} | {g.eval_episodes.sum()} | "
-                         f"{g.eval_env_steps.sum()} | {g.collection_env_steps.sum()} | {g.expert_failures.sum()} | "
-                         f"{int(g.cap_hit.sum())} |")
+            lines.append(
+                f"| {r} | {g.strategy.iloc[0]} | {g.demos_added.sum()} | {g.eval_episodes.sum()} | "
+                f"{g.eval_env_steps.sum()} | {g.collection_env_steps.sum()} | {g.expert_failures.sum()} | "
+                f"{int(g.cap_hit.sum())} |"
+            )
     return "\n".join(lines)
 
 
@@ -117,8 +139,12 @@ def plot_per_task_success(run: RunResults, path: Path) -> None:
     rounds = list(run.success.columns)
     width = 0.8 / len(rounds)
     for k, r in enumerate(rounds):
-        ax.bar([i + k * width for i in range(len(run.tasks))], 100 * run.success.loc[run.tasks, r], width,
-               label=f"round {r}")
+        ax.bar(
+            [i + k * width for i in range(len(run.tasks))],
+            100 * run.success.loc[run.tasks, r],
+            width,
+            label=f"round {r}",
+        )
     ax.set_xticks([i + 0.4 - width / 2 for i in range(len(run.tasks))], run.tasks, rotation=30, fontsize=8)
     ax.set_ylabel("success rate (%)")
     ax.set_ylim(0, 105)
@@ -159,26 +185,24 @@ def write_report(run_dirs: list[Path], out_dir: Path) -> Path:
         sections += ["| run | strategy | final avg SR % | avg demos per task |", "| --- | --- | --- | --- |"]
         for run in runs:
             last = run.success.columns[-1]
-            sections.append(f"| {run.name} | {run.label} | {_pct(run.success.loc['average', last])} | "
-                            f"{run.demos[last].mean():.1f} |")
+            sections.append(
+                f"| {run.name} | {run.label} | {_pct(run.success.loc['average', last])} | "
+                f"{run.demos[last].mean():.1f} |"
+            )
         sections.append("")
     for run in runs:
         plot_allocation(run, out_dir / f"allocation_{run.name}.png")
         plot_per_task_success(run, out_dir / f"success_{run.name}.png")
-        sections += [markdown_tables(run), "", f"![allocation](allocation_{run.name}.png) "
-                     f"![per-task success](success_{run.name}.png)", ""]
+        sections += [
+            markdown_tables(run),
+            "",
+            f"![allocation](allocation_{run.name}.png) ![per-task success](success_{run.name}.png)",
+            "",
+        ]
     sections += ["## Evaluation cost", "", "![evaluation cost](eval_cost.png)", ""]
     path = out_dir / "report.md"
     path.write_text("\n".join(sections))
     return path
-
-
-@dataclass
-class ReportConfig:
-    run_dir: str | None = None
-    # More run folders to compare against (e.g. the uniform and ablation arms).
-    compare: list[str] = field(default_factory=list)
-    output_dir: str | None = None
 
 
 def run_report(cfg: ReportConfig) -> Path:

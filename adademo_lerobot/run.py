@@ -20,22 +20,35 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
-from lerobot.configs.default import DatasetConfig
 from lerobot.configs.policies import PreTrainedConfig
 
 from adademo_lerobot.collect import collect_fresh, format_collection_table
-from adademo_lerobot.collectors.base import CollectorConfig, make_collector
-from adademo_lerobot.configs import EvalBatchArgs, ExpandConfig, PolicyPathArgs, DatasetArgs, default_collector, default_suite
-from adademo_lerobot.dataset.store import DemoDataset, atomic_write_text, read_episode_metadata
+from adademo_lerobot.collectors import CollectorConfig, make_collector
+from adademo_lerobot.configs import (
+    DatasetArgs,
+    EvalBatchArgs,
+    ExpandConfig,
+    PolicyPathArgs,
+    default_collector,
+    default_suite,
+)
+from adademo_lerobot.dataset.features import dataset_features
+from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
+from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.evaluation import (
-    evaluate_fixed_set, format_success_table, load_policy, success_table, write_eval_outputs,
+    evaluate_fixed_set,
+    format_success_table,
+    success_table,
+    write_eval_outputs,
 )
 from adademo_lerobot.expand import run_expand
-from adademo_lerobot.ledger import read_ledger
+from adademo_lerobot.files import atomic_write_text
+from adademo_lerobot.ledger import ledger_rounds
+from adademo_lerobot.policy import load_checked_policy
 from adademo_lerobot.strategies import STRATEGIES
-from adademo_lerobot.suites.base import SuiteConfig, make_suite
-from adademo_lerobot.train import AdaDemoTrainConfig, find_last_checkpoint, train
+from adademo_lerobot.suites import SuiteConfig, make_suite
+from adademo_lerobot.train import AdaDemoTrainConfig, TrainDatasetConfig, find_last_checkpoint, train
 
 STEPS_SCHEDULES = ("constant", "proportional")
 
@@ -125,11 +138,16 @@ class RunState:
         self.path = run_dir / "run_state.json"
         if self.path.exists():
             state = json.loads(self.path.read_text())
-            diffs = sorted(k for k in set(settings) | set(state["settings"])
-                           if settings.get(k) != state["settings"].get(k) and k in FIXED_SETTINGS)
+            diffs = sorted(
+                k
+                for k in set(settings) | set(state["settings"])
+                if settings.get(k) != state["settings"].get(k) and k in FIXED_SETTINGS
+            )
             if diffs:
-                raise AdaDemoError(f"{run_dir} was started with other settings ({', '.join(diffs)}); "
-                                   "rerun with the same recipe and flags, or use another --run_dir")
+                raise AdaDemoError(
+                    f"{run_dir} was started with other settings ({', '.join(diffs)}); "
+                    "rerun with the same recipe and flags, or use another --run_dir"
+                )
             self.done = state["done"]
             settings = {**state["settings"], **settings}
         else:
@@ -140,22 +158,32 @@ class RunState:
     def _save(self) -> None:
         atomic_write_text(self.path, json.dumps({"settings": self.settings, "done": self.done}, indent=2))
 
-    def stage(self, name: str, fn):
-        """Run `fn` unless the stage already finished; remember its (JSON) result."""
+    def stage(self, name: str, fn, *args):
+        """Run `fn(*args)` unless the stage already finished; remember its (JSON) result."""
         if name in self.done:
             print(f"[done] {name}")
             return self.done[name]
         print(f"[run]  {name}")
         start = time.perf_counter()
-        result = fn()
+        result = fn(*args)
         self.done[name] = {"result": result, "seconds": round(time.perf_counter() - start, 1)}
         self._save()
         return self.done[name]
 
 
 # Settings whose change would make a resumed run a different experiment.
-FIXED_SETTINGS = ("suite", "strategy", "initial_demos_per_task", "seed", "eval", "target_successes",
-                  "max_demos_per_task", "demos_per_task", "sampler", "policy_type")
+FIXED_SETTINGS = (
+    "suite",
+    "strategy",
+    "initial_demos_per_task",
+    "seed",
+    "eval",
+    "target_successes",
+    "max_demos_per_task",
+    "demos_per_task",
+    "sampler",
+    "policy_type",
+)
 
 
 def run(cfg: RunConfig) -> Path:
@@ -165,37 +193,57 @@ def run(cfg: RunConfig) -> Path:
     collector = make_collector(cfg.collector, suite)
     run_dir.mkdir(parents=True, exist_ok=True)
     settings = {
-        "suite": suite.config.to_dict(), "strategy": cfg.strategy, "rounds": cfg.rounds,
-        "initial_demos_per_task": cfg.initial_demos_per_task, "seed": cfg.seed,
+        "suite": suite.config.to_dict(),
+        "strategy": cfg.strategy,
+        "rounds": cfg.rounds,
+        "initial_demos_per_task": cfg.initial_demos_per_task,
+        "seed": cfg.seed,
         "eval": {"episodes_per_task": cfg.eval.episodes_per_task, "seed": cfg.eval.seed},
-        "target_successes": cfg.target_successes, "max_demos_per_task": cfg.max_demos_per_task,
-        "demos_per_task": cfg.demos_per_task, "sampler": cfg.train.sampler, "policy_type": cfg.train.policy.type,
-        "train_mode": cfg.train.mode, "min_task_weight": cfg.train.min_task_weight,
+        "target_successes": cfg.target_successes,
+        "max_demos_per_task": cfg.max_demos_per_task,
+        "demos_per_task": cfg.demos_per_task,
+        "sampler": cfg.train.sampler,
+        "policy_type": cfg.train.policy.type,
+        "train_mode": cfg.train.mode,
+        "min_task_weight": cfg.train.min_task_weight,
     }
     state = RunState(run_dir, settings)
     dataset_root = run_dir / "dataset"
     repo_id = f"local/{run_dir.name}"
 
     def collect_initial():
-        if not (dataset_root / "meta" / "info.json").exists():
+        if not has_dataset(dataset_root):
             DemoDataset.check_new_root(dataset_root)
             dataset = DemoDataset(repo_id, dataset_root, suite.config)
         else:
             dataset = DemoDataset.open(repo_id, dataset_root)
-        records = collect_fresh(suite, collector, dataset, {t: cfg.initial_demos_per_task for t in suite.tasks},
-                                cfg.seed, round_index=0, source="initial", commit_every=cfg.commit_every,
-                                desc="initial demos")
+        records = collect_fresh(
+            suite,
+            collector,
+            dataset,
+            dict.fromkeys(suite.tasks, cfg.initial_demos_per_task),
+            cfg.seed,
+            round_index=0,
+            source="initial",
+            commit_every=cfg.commit_every,
+            desc="initial demos",
+        )
         print(format_collection_table(records))
         return {t: r.demos_added for t, r in records.items()}
 
     state.stage("collect", collect_initial)
-    checkpoint = Path(state.stage("train-0", lambda: train_round(cfg, run_dir, dataset_root, repo_id, 0, None))["result"])
-    state.stage("eval-0", lambda: evaluate_round(cfg, suite, run_dir, checkpoint, 0))
+    checkpoint = Path(
+        state.stage("train-0", train_round, cfg, run_dir, dataset_root, repo_id, 0, None)["result"]
+    )
+    state.stage("eval-0", evaluate_round, cfg, suite, run_dir, checkpoint, 0)
     for i in range(1, cfg.rounds + 1):
-        state.stage(f"expand-{i}", lambda: expand_round(cfg, dataset_root, repo_id, checkpoint, i))
-        checkpoint = Path(state.stage(
-            f"train-{i}", lambda: train_round(cfg, run_dir, dataset_root, repo_id, i, checkpoint))["result"])
-        state.stage(f"eval-{i}", lambda: evaluate_round(cfg, suite, run_dir, checkpoint, i))
+        state.stage(f"expand-{i}", expand_round, cfg, dataset_root, repo_id, checkpoint, i)
+        checkpoint = Path(
+            state.stage(f"train-{i}", train_round, cfg, run_dir, dataset_root, repo_id, i, checkpoint)[
+                "result"
+            ]
+        )
+        state.stage(f"eval-{i}", evaluate_round, cfg, suite, run_dir, checkpoint, i)
 
     from adademo_lerobot.report import write_report
 
@@ -206,7 +254,9 @@ def run(cfg: RunConfig) -> Path:
     return run_dir
 
 
-def train_round(cfg: RunConfig, run_dir: Path, dataset_root: Path, repo_id: str, i: int, previous: Path | None) -> str:
+def train_round(
+    cfg: RunConfig, run_dir: Path, dataset_root: Path, repo_id: str, i: int, previous: Path | None
+) -> str:
     out = run_dir / "train" / f"round-{i}"
     resume = find_last_checkpoint(out) is not None
     if out.exists() and not resume:
@@ -224,40 +274,61 @@ def train_round(cfg: RunConfig, run_dir: Path, dataset_root: Path, repo_id: str,
         initial = int((eps["adademo/round"] == 0).sum())
         steps = min(cfg.train.max_steps, round(cfg.train.steps * len(eps) / max(initial, 1)))
     train_cfg = AdaDemoTrainConfig(
-        dataset=DatasetConfig(repo_id=repo_id, root=str(dataset_root)), policy=policy, output_dir=out,
-        resume=resume, seed=cfg.train.seed, batch_size=cfg.train.batch_size, steps=steps,
-        save_freq=min(cfg.train.save_freq, steps), sampler=cfg.train.sampler,
-        min_task_weight=cfg.train.min_task_weight, torch_threads=cfg.train.torch_threads,
+        dataset=TrainDatasetConfig(repo_id=repo_id, root=str(dataset_root)),
+        policy=policy,
+        output_dir=out,
+        resume=resume,
+        seed=cfg.train.seed,
+        batch_size=cfg.train.batch_size,
+        steps=steps,
+        save_freq=min(cfg.train.save_freq, steps),
+        sampler=cfg.train.sampler,
+        min_task_weight=cfg.train.min_task_weight,
+        torch_threads=cfg.train.torch_threads,
     )
     return str(train(train_cfg).resolve())
 
 
 def evaluate_round(cfg: RunConfig, suite, run_dir: Path, checkpoint: Path, i: int) -> dict:
     torch.set_num_threads(cfg.train.torch_threads)
-    loaded = load_policy(checkpoint, cfg.device)
-    records, env_steps, seconds = evaluate_fixed_set(suite, loaded, cfg.eval.seed, cfg.eval.episodes_per_task,
-                                                     cfg.eval.batch_size)
+    loaded = load_checked_policy(checkpoint, dataset_features(suite), cfg.device)
+    records, env_steps, seconds = evaluate_fixed_set(
+        suite, loaded, cfg.eval.seed, cfg.eval.episodes_per_task, cfg.eval.batch_size
+    )
     table = success_table(records, suite.tasks)
     print(f"round {i} evaluation (fixed set, {cfg.eval.episodes_per_task} episodes per task):")
     print(format_success_table(table))
     out = run_dir / "eval" / f"round-{i:03d}"
-    write_eval_outputs(out, records, table, {"round": i, "policy_path": str(checkpoint), "env_steps": env_steps,
-                                             "wall_seconds": seconds})
+    write_eval_outputs(
+        out,
+        records,
+        table,
+        {"round": i, "policy_path": str(checkpoint), "env_steps": env_steps, "wall_seconds": seconds},
+    )
     return {"average_success": float(table.success_rate.iloc[-1])}
 
 
 def expand_round(cfg: RunConfig, dataset_root: Path, repo_id: str, checkpoint: Path, i: int) -> dict:
-    if any(r["round"] == i for r in read_ledger(dataset_root)):
-        return {"note": "round already in the ledger"}  # killed after the round finished
+    """Expansion round i of the run: the run's round number is the one truth handed to `run_expand`."""
+    if i in ledger_rounds(dataset_root):  # killed after the round finished, before the run marked it done
+        eps = read_episode_metadata(dataset_root)
+        return {"demos_added": eps[eps["adademo/round"] == i].groupby("task").size().astype(int).to_dict()}
     expand_cfg = ExpandConfig(
-        dataset=DatasetArgs(repo_id=repo_id, root=str(dataset_root)), policy=PolicyPathArgs(path=str(checkpoint)),
-        strategy=cfg.strategy, target_successes=per_round(cfg.target_successes, i),
-        max_demos_per_task=per_round(cfg.max_demos_per_task, i), demos_per_task=per_round(cfg.demos_per_task, i),
-        plan_episodes_per_task=cfg.plan_episodes_per_task, seed=cfg.seed, collector=cfg.collector,
-        eval=EvalBatchArgs(batch_size=cfg.eval.batch_size), device=cfg.device,
-        torch_threads=cfg.train.torch_threads, commit_every=cfg.commit_every,
+        dataset=DatasetArgs(repo_id=repo_id, root=str(dataset_root)),
+        policy=PolicyPathArgs(path=str(checkpoint)),
+        strategy=cfg.strategy,
+        target_successes=per_round(cfg.target_successes, i),
+        max_demos_per_task=per_round(cfg.max_demos_per_task, i),
+        demos_per_task=per_round(cfg.demos_per_task, i),
+        plan_episodes_per_task=cfg.plan_episodes_per_task,
+        seed=cfg.seed,
+        collector=cfg.collector,
+        eval=EvalBatchArgs(batch_size=cfg.eval.batch_size),
+        device=cfg.device,
+        torch_threads=cfg.train.torch_threads,
+        commit_every=cfg.commit_every,
     )
-    records = run_expand(expand_cfg)
+    records = run_expand(expand_cfg, round_index=i)
     return {"demos_added": {r.task: r.demos_added for r in records}}
 
 

@@ -11,21 +11,25 @@ import json
 import os
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
+from lerobot.configs.default import DatasetConfig
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.train import TrainPipelineConfig
 from lerobot.configs.types import NormalizationMode
 from tqdm import tqdm
 
-from adademo_lerobot.dataset.store import load_suite_config, read_episode_metadata, recover_interrupted_write
+from adademo_lerobot.dataset.metadata import read_episode_metadata, try_load_suite_config
+from adademo_lerobot.dataset.store import recover_interrupted_write
+from adademo_lerobot.dataset.video import video_backend
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.files import check_writable_location
+from adademo_lerobot.policy import POLICY_TYPES, check_policy_matches_features
 from adademo_lerobot.samplers import WeightedFrameSampler, frame_weights, make_sampling_scheme
 
-POLICY_TYPES = ("act", "diffusion")
 # Normalization floor: MetaWorld observations have constant dims (padding, unused objects); dividing by a
 # near-zero std turns float noise at evaluation time into huge inputs.
 MIN_STD = 1e-2
@@ -33,7 +37,14 @@ ADADEMO_TRAIN_INFO = "adademo_train.json"
 
 
 @dataclass
+class TrainDatasetConfig(DatasetConfig):
+    # LeRobot's default decoder choice logs a traceback when torchcodec cannot load; ours is quiet.
+    video_backend: str = field(default_factory=video_backend)
+
+
+@dataclass
 class AdaDemoTrainConfig(TrainPipelineConfig):
+    dataset: TrainDatasetConfig
     # trajectory (AdaDemo C) | task (uniform over tasks) | frame (LeRobot's default: uniform over frames)
     sampler: str = "trajectory"
     # Minimum share of every task under `trajectory`, in [0, 1/num_tasks].
@@ -43,7 +54,7 @@ class AdaDemoTrainConfig(TrainPipelineConfig):
     num_workers: int = 0
     batch_size: int = 64
     steps: int = 3000
-    eval_freq: int = 0
+    env_eval_freq: int = 0
     log_freq: int = 200
     save_freq: int = 1000
 
@@ -57,13 +68,16 @@ class AdaDemoTrainConfig(TrainPipelineConfig):
         if self.output_dir is None:
             raise AdaDemoError("--output_dir is required")
         self.output_dir = Path(self.output_dir)
+        check_writable_location(self.output_dir, "--output_dir")
         policy_path = parser.get_path_arg("policy")
         if policy_path is None and self.policy is not None and self.policy.pretrained_path is not None:
             policy_path = str(self.policy.pretrained_path)  # set programmatically (adademo-run fine-tuning)
         if self.resume:
             last = find_last_checkpoint(self.output_dir)
             if last is None:
-                raise AdaDemoError(f"--resume=true but {self.output_dir} has no complete checkpoint to resume from")
+                raise AdaDemoError(
+                    f"--resume=true but {self.output_dir} has no complete checkpoint to resume from"
+                )
             self.checkpoint_path = last
             policy_path = str(last / "pretrained_model")
         elif self.output_dir.exists() and any(self.output_dir.iterdir()):
@@ -72,16 +86,22 @@ class AdaDemoTrainConfig(TrainPipelineConfig):
             )
         if policy_path:
             if not (Path(policy_path) / "config.json").exists():
-                raise AdaDemoError(f"no LeRobot checkpoint at {policy_path} (expected .../pretrained_model/config.json)")
+                raise AdaDemoError(
+                    f"no LeRobot checkpoint at {policy_path} (expected .../pretrained_model/config.json)"
+                )
             overrides = parser.get_cli_overrides("policy") if not self.resume else []
             self.policy = PreTrainedConfig.from_pretrained(policy_path, cli_overrides=overrides)
             self.policy.pretrained_path = Path(policy_path)
         if self.policy is None:
-            raise AdaDemoError("choose a policy: --policy.type=act|diffusion, or --policy.path=CKPT to fine-tune")
+            raise AdaDemoError(
+                "choose a policy: --policy.type=act|diffusion, or --policy.path=CKPT to fine-tune"
+            )
         if self.policy.type not in POLICY_TYPES:
-            raise AdaDemoError(f"unsupported --policy.type={self.policy.type!r}; choose one of {', '.join(POLICY_TYPES)}")
+            raise AdaDemoError(
+                f"unsupported --policy.type={self.policy.type!r}; choose one of {', '.join(POLICY_TYPES)}"
+            )
         self.policy.push_to_hub = False
-        # ENV features are not normalized by LeRobot 0.4.4 by default; the task one-hot lives there.
+        # ENV features are not normalized by LeRobot's ACT/Diffusion by default; the task one-hot lives there.
         self.policy.normalization_mapping.setdefault("ENV", NormalizationMode.MEAN_STD)
         self.job_name = self.job_name or f"adademo_{self.policy.type}"
         if self.use_policy_training_preset:
@@ -94,9 +114,11 @@ def find_last_checkpoint(output_dir: Path) -> Path | None:
     candidates = []
     for d in (Path(output_dir) / "checkpoints").glob("[0-9]*"):
         # Only fully written checkpoints have a plain step name (see the save in `train`).
-        if d.name.isdigit() and (d / "pretrained_model" / "model.safetensors").exists() and (
-            d / "training_state" / "training_step.json"
-        ).exists():
+        if (
+            d.name.isdigit()
+            and (d / "pretrained_model" / "model.safetensors").exists()
+            and (d / "training_state" / "training_step.json").exists()
+        ):
             candidates.append(d)
     return max(candidates, key=lambda d: int(d.name)) if candidates else None
 
@@ -117,36 +139,45 @@ def robust_stats(stats: dict, keys: list[str]) -> dict:
     return out
 
 
-def check_policy_matches_dataset(policy_cfg: PreTrainedConfig, dataset_features: dict) -> None:
-    """A checkpoint must read and write exactly the dataset's features (names and shapes)."""
-    from lerobot.datasets.utils import dataset_to_policy_features
+def save_whole_checkpoint(
+    cfg, step, policy, optimizer, lr_scheduler, preprocessor, postprocessor, info, n
+) -> None:
+    """LeRobot's checkpoint, written beside its final name and renamed into place, so a kill never leaves a half
+    checkpoint that looks complete (LeRobot writes training_step.json before the RNG and optimizer state)."""
+    from lerobot.common.train_utils import get_step_checkpoint_dir, save_checkpoint, update_last_checkpoint
 
-    available = dataset_to_policy_features(dataset_features)
-    problems = []
-    for key, ft in {**policy_cfg.input_features, **policy_cfg.output_features}.items():
-        if key not in available:
-            problems.append(f"{key} (not in the dataset)")
-        elif tuple(available[key].shape) != tuple(ft.shape):
-            problems.append(f"{key} shape {tuple(ft.shape)} in the checkpoint vs {tuple(available[key].shape)} in the dataset")
-    if problems:
-        raise AdaDemoError("the checkpoint's features do not match the dataset: " + "; ".join(problems))
+    checkpoint_dir = get_step_checkpoint_dir(cfg.output_dir, cfg.steps, step)
+    partial = checkpoint_dir.with_name(checkpoint_dir.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    save_checkpoint(
+        partial,
+        step,
+        cfg,
+        policy,
+        optimizer,
+        lr_scheduler,
+        preprocessor,
+        postprocessor,
+        num_processes=n,
+        batch_size=cfg.batch_size,
+    )
+    (partial / "pretrained_model" / ADADEMO_TRAIN_INFO).write_text(json.dumps(info, indent=2))
+    shutil.rmtree(checkpoint_dir, ignore_errors=True)
+    os.replace(partial, checkpoint_dir)
+    update_last_checkpoint(checkpoint_dir)
 
 
 def train(cfg: AdaDemoTrainConfig) -> Path:
     """Train (or fine-tune, or resume) and return the last checkpoint's `pretrained_model` folder."""
     from accelerate import Accelerator
+    from accelerate.utils import DistributedDataParallelKwargs
+    from lerobot.common.train_utils import load_training_state
     from lerobot.datasets.factory import make_dataset
     from lerobot.optim.factory import make_optimizer_and_scheduler
     from lerobot.policies.factory import make_policy, make_pre_post_processors
     from lerobot.scripts.lerobot_train import update_policy
     from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
     from lerobot.utils.random_utils import set_seed
-    from lerobot.utils.train_utils import (
-        get_step_checkpoint_dir,
-        load_training_state,
-        save_checkpoint,
-        update_last_checkpoint,
-    )
 
     cfg.validate()
     torch.set_num_threads(cfg.torch_threads)
@@ -155,15 +186,21 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         raise AdaDemoError(f"no LeRobot dataset at {root}")
     recover_interrupted_write(root)
     episodes = read_episode_metadata(root)
-    suite_cfg = load_suite_config(root)
+    suite_cfg = try_load_suite_config(
+        root
+    )  # training needs only LeRobot's format; the suite is recorded if known
     scheme = make_sampling_scheme(cfg.sampler, cfg.min_task_weight, episodes["task"].nunique())
     if cfg.seed is not None:
-        set_seed(cfg.seed)
+        set_seed(cfg.seed)  # before the model is built: the same seed gives the same initial weights
 
     dataset = make_dataset(cfg)
     if cfg.policy.pretrained_path is not None:
-        check_policy_matches_dataset(cfg.policy, dataset.meta.features)
-    low_dim = [k for k, ft in dataset.meta.features.items() if k.startswith("observation") and ft["dtype"] == "float32"]
+        check_policy_matches_features(cfg.policy, dataset.meta.features)
+    low_dim = [
+        k
+        for k, ft in dataset.meta.features.items()
+        if k.startswith("observation") and ft["dtype"] == "float32"
+    ]
     low_dim.append("action")
     stats = robust_stats(dataset.meta.stats, low_dim)
     policy = make_policy(cfg=cfg.policy, ds_meta=dataset.meta)
@@ -174,7 +211,10 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         norm = {"stats": stats, "norm_map": policy.config.normalization_mapping}
         processor_kwargs["preprocessor_overrides"] = {
             "device_processor": {"device": policy.config.device},
-            "normalizer_processor": {**norm, "features": {**policy.config.input_features, **policy.config.output_features}},
+            "normalizer_processor": {
+                **norm,
+                "features": {**policy.config.input_features, **policy.config.output_features},
+            },
         }
         processor_kwargs["postprocessor_overrides"] = {
             "unnormalizer_processor": {**norm, "features": policy.config.output_features},
@@ -194,15 +234,32 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
 
     drop = int(getattr(cfg.policy, "drop_n_last_frames", 0) or 0)
     weights = frame_weights(scheme, episodes, dataset.num_frames, drop)
+    accelerator = Accelerator(
+        cpu=policy.config.device == "cpu",
+        step_scheduler_with_optimizer=False,
+        kwargs_handlers=[DistributedDataParallelKwargs(find_unused_parameters=True)],
+    )
+    # Under `accelerate launch` every process iterates the same draws and keeps every n-th batch
+    # (accelerate's BatchSamplerShard), so the sampler draws n times the samples and skips n times as many.
+    n = accelerator.num_processes
     sampler = WeightedFrameSampler(
-        weights, num_samples=(cfg.steps - step) * cfg.batch_size, seed=cfg.seed or 0, skip=step * cfg.batch_size
+        weights,
+        num_samples=(cfg.steps - step) * cfg.batch_size * n,
+        seed=cfg.seed or 0,
+        skip=step * cfg.batch_size * n,
     )
     dataloader = torch.utils.data.DataLoader(
-        dataset, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.num_workers, drop_last=False,
+        dataset,
+        batch_size=cfg.batch_size,
+        sampler=sampler,
+        num_workers=cfg.num_workers,
+        drop_last=False,
         prefetch_factor=2 if cfg.num_workers > 0 else None,
+        pin_memory=accelerator.device.type == "cuda",
     )
-    accelerator = Accelerator(cpu=policy.config.device == "cpu", step_scheduler_with_optimizer=False)
-    policy, optimizer, lr_scheduler = accelerator.prepare(policy, optimizer, lr_scheduler)
+    policy, optimizer, dataloader, lr_scheduler = accelerator.prepare(
+        policy, optimizer, dataloader, lr_scheduler
+    )
     metrics = {
         "loss": AverageMeter("loss", ":.3f"),
         "grad_norm": AverageMeter("grdn", ":.3f"),
@@ -210,59 +267,91 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         "update_s": AverageMeter("updt_s", ":.3f"),
         "dataloading_s": AverageMeter("data_s", ":.3f"),
     }
-    tracker = MetricsTracker(cfg.batch_size, dataset.num_frames, dataset.num_episodes, metrics, initial_step=step)
+    tracker = MetricsTracker(
+        cfg.batch_size,
+        dataset.num_frames,
+        dataset.num_episodes,
+        metrics,
+        initial_step=step,
+        accelerator=accelerator,
+    )
     info = {
         "sampler": cfg.sampler,
         "min_task_weight": cfg.min_task_weight,
         "episodes": int(len(episodes)),
         "frames": int(dataset.num_frames),
         "episodes_per_task": {k: int(v) for k, v in episodes["task"].value_counts().items()},
-        "suite": suite_cfg.to_dict(),
+        "suite": suite_cfg.to_dict() if suite_cfg else None,
     }
     wandb_logger = None
-    if cfg.wandb.enable and cfg.wandb.project:
-        from lerobot.rl.wandb_utils import WandBLogger
+    if cfg.wandb.enable and cfg.wandb.project and accelerator.is_main_process:
+        from lerobot.common.wandb_utils import WandBLogger
 
         wandb_logger = WandBLogger(cfg)
 
+    camera_keys = dataset.meta.camera_keys
     policy.train()
     start, start_step = time.perf_counter(), step
-    bar = tqdm(total=cfg.steps, initial=step, desc=f"train {cfg.policy.type}/{cfg.sampler}", unit="step",
-               dynamic_ncols=True)
+    bar = tqdm(
+        total=cfg.steps,
+        initial=step,
+        desc=f"train {cfg.policy.type}/{cfg.sampler}",
+        unit="step",
+        dynamic_ncols=True,
+        disable=not accelerator.is_main_process,
+    )
     data_start = time.perf_counter()
     for batch in dataloader:
+        for (
+            key
+        ) in camera_keys:  # LeRobot's dataset returns frames as uint8 (as stock lerobot-train converts them)
+            if key in batch and batch[key].dtype == torch.uint8:
+                batch[key] = batch[key].to(torch.float32) / 255.0
         batch = preprocessor(batch)
         tracker.dataloading_s = time.perf_counter() - data_start
         tracker, output = update_policy(
-            tracker, policy, batch, optimizer, cfg.optimizer.grad_clip_norm, accelerator=accelerator,
+            tracker,
+            policy,
+            batch,
+            optimizer,
+            cfg.optimizer.grad_clip_norm,
+            accelerator=accelerator,
             lr_scheduler=lr_scheduler,
         )
         step += 1
         tracker.step()
         bar.update(1)
-        bar.set_postfix(loss=f"{tracker.loss.val:.3f}", steps_s=f"{(step - start_step) / (time.perf_counter() - start):.1f}")
+        bar.set_postfix(
+            loss=f"{tracker.loss.val:.3f}",
+            steps_s=f"{(step - start_step) / (time.perf_counter() - start):.1f}",
+        )
         if cfg.log_freq > 0 and step % cfg.log_freq == 0:
-            tqdm.write(str(tracker))  # to stdout, above the progress bar
-            if wandb_logger:
-                wandb_logger.log_dict({**tracker.to_dict(), **(output or {})}, step)
+            if accelerator.is_main_process:
+                tqdm.write(str(tracker))  # to stdout, above the progress bar
+                if wandb_logger:
+                    wandb_logger.log_dict({**tracker.to_dict(), **(output or {})}, step)
             tracker.reset_averages()
         if step % cfg.save_freq == 0 or step == cfg.steps:
-            # Written beside its final name and renamed into place, so a kill never leaves a half checkpoint
-            # that looks complete (LeRobot writes training_step.json before the RNG and optimizer state).
-            checkpoint_dir = get_step_checkpoint_dir(cfg.output_dir, cfg.steps, step)
-            partial = checkpoint_dir.with_name(checkpoint_dir.name + ".partial")
-            shutil.rmtree(partial, ignore_errors=True)
-            save_checkpoint(partial, step, cfg, accelerator.unwrap_model(policy), optimizer, lr_scheduler,
-                            preprocessor, postprocessor)
-            (partial / "pretrained_model" / ADADEMO_TRAIN_INFO).write_text(json.dumps(info, indent=2))
-            shutil.rmtree(checkpoint_dir, ignore_errors=True)
-            os.replace(partial, checkpoint_dir)
-            update_last_checkpoint(checkpoint_dir)
+            if accelerator.is_main_process:
+                save_whole_checkpoint(
+                    cfg,
+                    step,
+                    accelerator.unwrap_model(policy),
+                    optimizer,
+                    lr_scheduler,
+                    preprocessor,
+                    postprocessor,
+                    info,
+                    n,
+                )
+            accelerator.wait_for_everyone()
         if step >= cfg.steps:
             break
         data_start = time.perf_counter()
     bar.close()
     elapsed = time.perf_counter() - start
-    print(f"trained {step - start_step} steps in {elapsed:.1f} s ({(step - start_step) / max(elapsed, 1e-9):.1f} steps/s); "
-          f"checkpoint: {cfg.output_dir / 'checkpoints' / 'last' / 'pretrained_model'}")
+    print(
+        f"trained {step - start_step} steps in {elapsed:.1f} s ({(step - start_step) / max(elapsed, 1e-9):.1f} steps/s); "
+        f"checkpoint: {cfg.output_dir / 'checkpoints' / 'last' / 'pretrained_model'}"
+    )
     return cfg.output_dir / "checkpoints" / "last" / "pretrained_model"

@@ -21,20 +21,36 @@ def sh(*args: str) -> subprocess.CompletedProcess:
 
 
 def collect(root: Path, tasks: str, per_task: int, seed: int = 0) -> Path:
-    sh(BIN / "adademo-collect", f"--suite.tasks={tasks}", f"--episodes_per_task={per_task}",
-       "--dataset.repo_id=local/bench", f"--dataset.root={root}", f"--seed={seed}")
+    sh(
+        BIN / "adademo-collect",
+        f"--suite.tasks={tasks}",
+        f"--episodes_per_task={per_task}",
+        "--dataset.repo_id=local/bench",
+        f"--dataset.root={root}",
+        f"--seed={seed}",
+    )
     return root
 
 
 def train_small_act(dataset: Path, out: Path, steps: int = 50, extra: tuple[str, ...] = ()) -> Path:
-    sh(BIN / "adademo-train", f"--config_path={ROOT / 'policies' / 'act_state_cpu.yaml'}", "--dataset.repo_id=local/bench",
-       f"--dataset.root={dataset}", f"--steps={steps}", f"--save_freq={steps}", f"--output_dir={out}", *extra)
+    sh(
+        BIN / "adademo-train",
+        f"--config_path={ROOT / 'policies' / 'act_state_cpu.yaml'}",
+        "--dataset.repo_id=local/bench",
+        f"--dataset.root={dataset}",
+        f"--steps={steps}",
+        f"--save_freq={steps}",
+        f"--output_dir={out}",
+        *extra,
+    )
     return out / "checkpoints" / "last" / "pretrained_model"
 
 
 def machine_line() -> str:
-    return (f"date {time.strftime('%Y-%m-%d')}; machine: {platform.machine()}, 2 CPU cores, "
-            f"Python {platform.python_version()}")
+    return (
+        f"date {time.strftime('%Y-%m-%d')}; machine: {platform.machine()}, 2 CPU cores, "
+        f"Python {platform.python_version()}"
+    )
 
 
 def grow_dataset(root: Path, episodes: int, tasks: str = "reach-v3,push-v3", unique: int = 10):
@@ -42,10 +58,10 @@ def grow_dataset(root: Path, episodes: int, tasks: str = "reach-v3,push-v3", uni
     new seeds). Returns (DemoDataset, suite, collector, demos)."""
     import dataclasses
 
-    from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector
+    from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
     from adademo_lerobot.dataset.store import DemoDataset
+    from adademo_lerobot.seeds import derive_seed
     from adademo_lerobot.suites import MetaWorldSuiteConfig, make_suite
-    from adademo_lerobot.suites.base import derive_seed
 
     suite = make_suite(MetaWorldSuiteConfig(tasks=tasks))
     collector = make_collector(ScriptedCollectorConfig(), suite)

@@ -34,7 +34,10 @@ def main() -> None:
                 ds.append(suite, batch(10, 10**6 + 10 * r), 1, "bench", collector.name)
                 times.append(time.perf_counter() - start)
             rows.append((size, statistics.median(times), times))
-            print(f"{size} episodes: median {rows[-1][1]:.2f} s ({', '.join(f'{t:.2f}' for t in times)})", flush=True)
+            print(
+                f"{size} episodes: median {rows[-1][1]:.2f} s ({', '.join(f'{t:.2f}' for t in times)})",
+                flush=True,
+            )
     ratio = rows[-1][1] / rows[0][1]
     lines = [
         "# Append scaling: 10 new episodes into datasets of growing size",

@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-
 from _common import BIN, RESULTS, ROOT, machine_line
 
 ARMS = {  # arm -> recipe (strategy + sampler)
@@ -38,8 +37,13 @@ ARMS = {  # arm -> recipe (strategy + sampler)
     "uniform_3x": "uniform.yaml",  # optional (--uniform_3x)
 }
 MAIN_ARMS = ["adademo", "ablation_ab", "ablation_a", "uniform"]
-LABELS = {"adademo": "AdaDemo (A+B+C)", "ablation_ab": "A+B", "ablation_a": "A", "uniform": "Uniform",
-          "uniform_3x": "Uniform, 3x budget"}
+LABELS = {
+    "adademo": "AdaDemo (A+B+C)",
+    "ablation_ab": "A+B",
+    "ablation_a": "A",
+    "uniform": "Uniform",
+    "uniform_3x": "Uniform, 3x budget",
+}
 BUDGET_FACTOR = {"uniform": 1, "uniform_3x": 3}  # x AdaDemo's mean new demos per task, per round
 
 
@@ -47,8 +51,15 @@ TORCH_THREADS: list[str] = []  # --torch_threads: set when two drivers share the
 
 
 def adademo_run(recipe: str, run_dir: Path, seed: int, *extra: str) -> None:
-    cmd = [str(BIN / "adademo-run"), f"--config_path={ROOT / 'recipes' / recipe}", f"--run_dir={run_dir}",
-           f"--seed={seed}", f"--train.seed={1000 + seed}", *TORCH_THREADS, *extra]
+    cmd = [
+        str(BIN / "adademo-run"),
+        f"--config_path={ROOT / 'recipes' / recipe}",
+        f"--run_dir={run_dir}",
+        f"--seed={seed}",
+        f"--train.seed={1000 + seed}",
+        *TORCH_THREADS,
+        *extra,
+    ]
     print("$", " ".join(cmd), flush=True)
     log = run_dir.parent / f"{run_dir.name}.log"
     run_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -68,13 +79,21 @@ def branch_from_base(base: Path, arm_dir: Path, recipe: str, extra: list[str]) -
     from adademo_lerobot.cli import parse_config
     from adademo_lerobot.run import RunConfig
 
-    cfg = parse_config(RunConfig, [f"--config_path={ROOT / 'recipes' / recipe}", f"--run_dir={arm_dir}", *extra])
-    state["settings"].update({
-        "strategy": cfg.strategy, "sampler": cfg.train.sampler, "rounds": cfg.rounds,
-        "target_successes": cfg.target_successes, "max_demos_per_task": cfg.max_demos_per_task,
-        "demos_per_task": cfg.demos_per_task, "min_task_weight": cfg.train.min_task_weight,
-        "train_mode": cfg.train.mode,
-    })
+    cfg = parse_config(
+        RunConfig, [f"--config_path={ROOT / 'recipes' / recipe}", f"--run_dir={arm_dir}", *extra]
+    )
+    state["settings"].update(
+        {
+            "strategy": cfg.strategy,
+            "sampler": cfg.train.sampler,
+            "rounds": cfg.rounds,
+            "target_successes": cfg.target_successes,
+            "max_demos_per_task": cfg.max_demos_per_task,
+            "demos_per_task": cfg.demos_per_task,
+            "min_task_weight": cfg.train.min_task_weight,
+            "train_mode": cfg.train.mode,
+        }
+    )
     state["done"] = {k: v for k, v in state["done"].items() if k in ("collect", "train-0", "eval-0")}
     (tmp / "run_state.json").write_text(json.dumps(state, indent=2))
     tmp.rename(arm_dir)
@@ -85,7 +104,9 @@ def uniform_budget(adademo_dir: Path, rounds: int, factor: int) -> list[int]:
 
     ledger = pd.DataFrame(read_ledger(adademo_dir / "dataset"))
     if ledger.empty or not set(range(1, rounds + 1)) <= set(ledger["round"]):
-        sys.exit(f"{adademo_dir} has not finished its {rounds} rounds: Uniform's budget follows AdaDemo's (run it first)")
+        sys.exit(
+            f"{adademo_dir} has not finished its {rounds} rounds: Uniform's budget follows AdaDemo's (run it first)"
+        )
     return [math.ceil(factor * ledger[ledger["round"] == r].demos_added.mean()) for r in range(1, rounds + 1)]
 
 
@@ -116,9 +137,16 @@ def demos_to_reach(x: np.ndarray, y: np.ndarray, target: float) -> float | None:
 def aggregate(out: Path, seeds: list[int]) -> None:
     from adademo_lerobot.report import load_run
 
-    runs = {(arm, s): load_run(out / f"seed{s}" / arm) for arm in ARMS for s in seeds
-            if (out / f"seed{s}" / arm / "eval").exists()}
-    done = {arm: [s for s in seeds if (arm, s) in runs and len(runs[(arm, s)].success.columns) == 4] for arm in ARMS}
+    runs = {
+        (arm, s): load_run(out / f"seed{s}" / arm)
+        for arm in ARMS
+        for s in seeds
+        if (out / f"seed{s}" / arm / "eval").exists()
+    }
+    done = {
+        arm: [s for s in seeds if (arm, s) in runs and len(runs[(arm, s)].success.columns) == 4]
+        for arm in ARMS
+    }
     complete = [s for s in seeds if all(s in done[arm] for arm in MAIN_ARMS)]
     if not complete:
         sys.exit("no seed has all four arms through round 3 yet")
@@ -127,31 +155,47 @@ def aggregate(out: Path, seeds: list[int]) -> None:
     tasks = runs[("adademo", complete[0])].tasks
     rows, curves = [], {}
     for arm in arms:
-        sr = np.stack([runs[(arm, s)].success.loc[tasks].to_numpy() for s in arm_seeds[arm]])  # seed x task x round
+        sr = np.stack(
+            [runs[(arm, s)].success.loc[tasks].to_numpy() for s in arm_seeds[arm]]
+        )  # seed x task x round
         demos = np.stack([runs[(arm, s)].demos.loc[tasks].to_numpy() for s in arm_seeds[arm]])
         curves[arm] = (demos.mean(axis=(0, 1)), sr.mean(axis=1).mean(axis=0), sr.mean(axis=1).std(axis=0))
         for t, task in enumerate(tasks + ["average"]):
             vals = sr[:, t] if t < len(tasks) else sr.mean(axis=1)
             d = demos[:, t] if t < len(tasks) else demos.mean(axis=1)
-            rows.append({"arm": arm, "task": task,
-                         **{f"r{r}": f"{100 * vals[:, r].mean():.0f} ± {100 * vals[:, r].std():.0f} ({d[:, r].mean():.0f})"
-                            for r in range(4)}})
+            rows.append(
+                {
+                    "arm": arm,
+                    "task": task,
+                    **{
+                        f"r{r}": f"{100 * vals[:, r].mean():.0f} ± {100 * vals[:, r].std():.0f} ({d[:, r].mean():.0f})"
+                        for r in range(4)
+                    },
+                }
+            )
     ax_, ay, _ = curves["adademo"]
     headlines = []
     # Headline 1: demos AdaDemo needs to reach a Uniform arm's final average SR (interpolated on AdaDemo's curve).
     for arm in [a for a in arms if a in BUDGET_FACTOR]:
         ux, uy, _ = curves[arm]
         reached = demos_to_reach(ax_, ay, uy[-1])
-        headlines.append(f"- {LABELS[arm]} (seeds {arm_seeds[arm]}): final average SR {100 * uy[-1]:.1f}% with "
-                         f"{ux[-1]:.1f} demos per task. " + (
-            f"AdaDemo reaches it with {reached:.1f} demos per task: **{reached / ux[-1]:.2f}x** Uniform's demos "
-            f"(goal <= 1/3; the shared round 0 alone is {ax_[0] / ux[-1]:.2f}x)." if reached is not None else
-            f"AdaDemo does not reach it within its {ax_[-1]:.1f} demos per task (goal: <= 1/3 of Uniform's)."))
+        headlines.append(
+            f"- {LABELS[arm]} (seeds {arm_seeds[arm]}): final average SR {100 * uy[-1]:.1f}% with "
+            f"{ux[-1]:.1f} demos per task. "
+            + (
+                f"AdaDemo reaches it with {reached:.1f} demos per task: **{reached / ux[-1]:.2f}x** Uniform's demos "
+                f"(goal <= 1/3; the shared round 0 alone is {ax_[0] / ux[-1]:.2f}x)."
+                if reached is not None
+                else f"AdaDemo does not reach it within its {ax_[-1]:.1f} demos per task (goal: <= 1/3 of Uniform's)."
+            )
+        )
     # Headline 2: SR difference at (about) equal budget after round 3.
     ux, uy, _ = curves["uniform"]
     diff = 100 * (ay[-1] - uy[-1])
-    headlines.append(f"- After round 3 at about equal budget: AdaDemo {100 * ay[-1]:.1f}% with {ax_[-1]:.1f} demos per "
-                     f"task vs Uniform {100 * uy[-1]:.1f}% with {ux[-1]:.1f}: **{diff:+.1f} points** (goal >= +5).")
+    headlines.append(
+        f"- After round 3 at about equal budget: AdaDemo {100 * ay[-1]:.1f}% with {ax_[-1]:.1f} demos per "
+        f"task vs Uniform {100 * uy[-1]:.1f}% with {ux[-1]:.1f}: **{diff:+.1f} points** (goal >= +5)."
+    )
     plot(curves, RESULTS / "data_efficiency.png")
     table = pd.DataFrame(rows)
     flags = " --uniform_3x" if "uniform_3x" in arms else ""
@@ -169,8 +213,12 @@ def aggregate(out: Path, seeds: list[int]) -> None:
         "",
         "| arm | task | " + " | ".join(f"round {r}" for r in range(4)) + " |",
         "| --- | --- |" + " --- |" * 4,
-        *[f"| {LABELS[row.arm]} | {row.task} | " + " | ".join(getattr(row, f"r{r}") for r in range(4)) + " |"
-          for row in table.itertuples()],
+        *[
+            f"| {LABELS[row.arm]} | {row.task} | "
+            + " | ".join(getattr(row, f"r{r}") for r in range(4))
+            + " |"
+            for row in table.itertuples()
+        ],
         "",
         "![success vs demos](data_efficiency.png)",
         "",
@@ -204,10 +252,17 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
     parser.add_argument("--aggregate_only", action="store_true")
     parser.add_argument("--uniform_3x", action="store_true", help="also run Uniform with 3x AdaDemo's budget")
-    parser.add_argument("--arms", nargs="+", choices=list(ARMS),
-                        help="run only these arms (e.g. two drivers on disjoint arms; uniform arms need adademo's ledger)")
-    parser.add_argument("--torch_threads", type=int,
-                        help="torch threads per run (default: the recipe's 2); use 1 when two drivers share 2 cores")
+    parser.add_argument(
+        "--arms",
+        nargs="+",
+        choices=list(ARMS),
+        help="run only these arms (e.g. two drivers on disjoint arms; uniform arms need adademo's ledger)",
+    )
+    parser.add_argument(
+        "--torch_threads",
+        type=int,
+        help="torch threads per run (default: the recipe's 2); use 1 when two drivers share 2 cores",
+    )
     args = parser.parse_args()
     if args.torch_threads:
         TORCH_THREADS.append(f"--train.torch_threads={args.torch_threads}")

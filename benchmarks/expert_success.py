@@ -16,8 +16,8 @@ import time
 
 import numpy as np
 
-from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector
-from adademo_lerobot.suites.base import SuiteConfig, make_suite
+from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+from adademo_lerobot.suites import SuiteConfig, make_suite
 
 DEFAULTS = {  # suite -> (tasks, max_episode_steps, title)
     "fetch": ("reach,push,pick_and_place,slide", 50, "Fetch"),
@@ -40,7 +40,9 @@ def main() -> None:
 
     import adademo_lerobot.suites  # noqa: F401  (registers the suite configs)
 
-    config = SuiteConfig.get_choice_class(args.suite)(tasks=args.tasks, max_episode_steps=args.max_episode_steps)
+    config = SuiteConfig.get_choice_class(args.suite)(
+        tasks=args.tasks, max_episode_steps=args.max_episode_steps
+    )
     suite = make_suite(config)
     collector = make_collector(ScriptedCollectorConfig(max_attempts=args.max_attempts), suite)
     rows = []
@@ -58,12 +60,23 @@ def main() -> None:
         seconds = time.perf_counter() - started
         mean_frames = f"{np.mean(demo_frames):.1f}" if demo_frames else "-"
         shown = ", ".join(map(str, failed[:10])) + (" ..." if len(failed) > 10 else "")
-        rows.append((task, f"{successes}/{args.states}", f"{100.0 * successes / args.states:.0f}%", mean_frames,
-                     str(env_steps), f"{seconds:.1f}", shown or "-"))
+        rows.append(
+            (
+                task,
+                f"{successes}/{args.states}",
+                f"{100.0 * successes / args.states:.0f}%",
+                mean_frames,
+                str(env_steps),
+                f"{seconds:.1f}",
+                shown or "-",
+            )
+        )
 
     header = ("task", "successes", "success rate", "mean demo frames", "env steps", "wall s", "failed seeds")
-    print(f"{title} scripted experts, seeds 0..{args.states - 1}, max_attempts={args.max_attempts}, "
-          f"max_episode_steps={args.max_episode_steps}\n")
+    print(
+        f"{title} scripted experts, seeds 0..{args.states - 1}, max_attempts={args.max_attempts}, "
+        f"max_episode_steps={args.max_episode_steps}\n"
+    )
     print("| " + " | ".join(header) + " |")
     print("|" + "|".join("---" for _ in header) + "|")
     for row in rows:

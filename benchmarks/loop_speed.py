@@ -18,7 +18,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _common import RESULTS, collect, machine_line, train_small_act
 
 TASKS = ["reach-v3", "push-v3", "drawer-open-v3", "pick-place-v3"]
@@ -31,7 +30,7 @@ def raw_worker(seconds: float, seed: int, q) -> None:
     envs = {t: make_raw_env(t) for t in TASKS}
     steps, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
-        for t, env in envs.items():
+        for _t, env in envs.items():
             env._freeze_rand_vec = False
             env.seeded_rand_vec = True
             env.seed(int(rng.integers(1 << 30)))
@@ -46,12 +45,16 @@ def eval_worker(seconds: float, seed: int, ckpt: str, q) -> None:
     import torch
 
     torch.set_num_threads(1)
-    from adademo_lerobot.evaluation import BatchedEvaluator, evaluation_seeds, load_policy
+    from adademo_lerobot.evaluation import BatchedEvaluator
+    from adademo_lerobot.policy import load_policy
+    from adademo_lerobot.seeds import evaluation_seeds
     from adademo_lerobot.suites import MetaWorldSuiteConfig, make_suite
 
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS), max_episode_steps=200))
     evaluator = BatchedEvaluator(suite, load_policy(ckpt), batch_size=10)
-    evaluator.run(TASKS[0], evaluation_seeds(seed, TASKS[0], 10))  # warm-up: first inference outside the clock
+    evaluator.run(
+        TASKS[0], evaluation_seeds(seed, TASKS[0], 10)
+    )  # warm-up: first inference outside the clock
     evaluator.env_steps = 0
     start, k = time.perf_counter(), 0
     while time.perf_counter() - start < seconds:
@@ -62,9 +65,9 @@ def eval_worker(seconds: float, seed: int, ckpt: str, q) -> None:
 
 
 def collect_worker(seconds: float, seed: int, q) -> None:
-    from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector
+    from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+    from adademo_lerobot.seeds import derive_seed
     from adademo_lerobot.suites import MetaWorldSuiteConfig, make_suite
-    from adademo_lerobot.suites.base import derive_seed
 
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS), max_episode_steps=200))
     collector = make_collector(ScriptedCollectorConfig(), suite)
@@ -95,14 +98,18 @@ def main() -> None:
     args = parser.parse_args()
     os.environ["OMP_NUM_THREADS"] = "1"
     with tempfile.TemporaryDirectory() as tmp:
-        ckpt = str(train_small_act(collect(Path(tmp) / "ds", ",".join(TASKS), 3), Path(tmp) / "train", steps=20))
+        ckpt = str(
+            train_small_act(collect(Path(tmp) / "ds", ",".join(TASKS), 3), Path(tmp) / "train", steps=20)
+        )
         rows = []
         for workers in (1, 2):
             raw = measure(raw_worker, workers, args.seconds)
             ev = measure(eval_worker, workers, args.seconds, ckpt)
             col = measure(collect_worker, workers, args.seconds)
             rows.append((workers, raw, ev, col))
-            print(f"workers={workers}: raw {raw:.0f}, eval {ev:.0f}, collection {col:.0f} steps/s", flush=True)
+            print(
+                f"workers={workers}: raw {raw:.0f}, eval {ev:.0f}, collection {col:.0f} steps/s", flush=True
+            )
     r1 = rows[0]
     lines = [
         "# Loop speed: evaluation and collection vs raw simulator stepping",
@@ -118,7 +125,10 @@ def main() -> None:
         "",
         "| workers | raw steps/s | eval steps/s | eval / raw | collection steps/s | collection / raw |",
         "| --- | --- | --- | --- | --- | --- |",
-        *[f"| {w} | {raw:.0f} | {ev:.0f} | {ev / raw:.2f} | {col:.0f} | {col / raw:.2f} |" for w, raw, ev, col in rows],
+        *[
+            f"| {w} | {raw:.0f} | {ev:.0f} | {ev / raw:.2f} | {col:.0f} | {col / raw:.2f} |"
+            for w, raw, ev, col in rows
+        ],
         "",
         f"Scaling from 1 to 2 workers: raw x{rows[1][1] / r1[1]:.2f}, eval x{rows[1][2] / r1[2]:.2f}, "
         f"collection x{rows[1][3] / r1[3]:.2f}.",

@@ -13,13 +13,12 @@ import time
 from pathlib import Path
 
 import psutil
-
-from _common import BIN, ROOT, RESULTS, grow_dataset, machine_line, train_small_act
+from _common import BIN, RESULTS, ROOT, grow_dataset, machine_line, train_small_act
 
 
 def peak_rss_mb(args: list[str]) -> tuple[float, float]:
     start = time.perf_counter()
-    log = tempfile.TemporaryFile()  # not a pipe: a full pipe would block the child's progress bars
+    log = tempfile.TemporaryFile()  # noqa: SIM115  (not a pipe: a full pipe would block the child's bars)
     proc = subprocess.Popen([str(a) for a in args], stdout=subprocess.DEVNULL, stderr=log)
     ps, peak = psutil.Process(proc.pid), 0
     while proc.poll() is None:
@@ -40,12 +39,28 @@ def main() -> None:
         root = Path(tmp) / "ds2000"
         grow_dataset(root, 2000)
         ckpt = train_small_act(root, Path(tmp) / "ckpt", steps=10)
-        train_mb, train_s = peak_rss_mb([BIN / "adademo-train", f"--config_path={ROOT / 'policies/act_state_cpu.yaml'}",
-                                         "--dataset.repo_id=local/bench", f"--dataset.root={root}", "--steps=100",
-                                         "--save_freq=100", f"--output_dir={Path(tmp) / 'train'}"])
-        expand_mb, expand_s = peak_rss_mb([BIN / "adademo-expand", "--dataset.repo_id=local/bench",
-                                           f"--dataset.root={root}", f"--policy.path={ckpt}", "--strategy=adademo",
-                                           "--target_successes=2", "--max_demos_per_task=5"])
+        train_mb, train_s = peak_rss_mb(
+            [
+                BIN / "adademo-train",
+                f"--config_path={ROOT / 'policies/act_state_cpu.yaml'}",
+                "--dataset.repo_id=local/bench",
+                f"--dataset.root={root}",
+                "--steps=100",
+                "--save_freq=100",
+                f"--output_dir={Path(tmp) / 'train'}",
+            ]
+        )
+        expand_mb, expand_s = peak_rss_mb(
+            [
+                BIN / "adademo-expand",
+                "--dataset.repo_id=local/bench",
+                f"--dataset.root={root}",
+                f"--policy.path={ckpt}",
+                "--strategy=adademo",
+                "--target_successes=2",
+                "--max_demos_per_task=5",
+            ]
+        )
     lines = [
         "# Peak memory on a 2,000-episode dataset",
         "",

@@ -29,15 +29,33 @@ PRESETS = {
 
 
 def collect(root: Path, obs_type: str) -> None:
-    subprocess.run([str(BIN / "adademo-collect"), "--suite.tasks=reach-v3,push-v3", "--episodes_per_task=3",
-                    f"--suite.obs_type={obs_type}", "--dataset.repo_id=local/bench", f"--dataset.root={root}"],
-                   check=True, capture_output=True)
+    subprocess.run(
+        [
+            str(BIN / "adademo-collect"),
+            "--suite.tasks=reach-v3,push-v3",
+            "--episodes_per_task=3",
+            f"--suite.obs_type={obs_type}",
+            "--dataset.repo_id=local/bench",
+            f"--dataset.root={root}",
+        ],
+        check=True,
+        capture_output=True,
+    )
 
 
 def step_time(preset: str, dataset: Path, out: Path, steps: int) -> float:
-    cmd = [str(BIN / "adademo-train"), f"--config_path={ROOT / 'policies' / (preset + '.yaml')}",
-           "--dataset.repo_id=local/bench", f"--dataset.root={dataset}", f"--steps={steps}", "--policy.device=cpu",
-           "--num_workers=0", f"--save_freq={steps}", f"--output_dir={out}", "--log_freq=1"]
+    cmd = [
+        str(BIN / "adademo-train"),
+        f"--config_path={ROOT / 'policies' / (preset + '.yaml')}",
+        "--dataset.repo_id=local/bench",
+        f"--dataset.root={dataset}",
+        f"--steps={steps}",
+        "--policy.device=cpu",
+        "--num_workers=0",
+        f"--save_freq={steps}",
+        f"--output_dir={out}",
+        "--log_freq=1",
+    ]
     if "pixels" in preset:
         cmd.append("--dataset.video_backend=pyav")
     proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -45,7 +63,7 @@ def step_time(preset: str, dataset: Path, out: Path, steps: int) -> float:
         raise RuntimeError(proc.stderr[-2000:])
     # LeRobot's MetricsTracker logs updt_s (update time) every step with --log_freq=1.
     times = [float(x) for x in re.findall(r"updt_s:([0-9.]+)", proc.stderr + proc.stdout)]
-    warm = times[len(times) // 3:]
+    warm = times[len(times) // 3 :]
     return 1000 * sum(warm) / len(warm)
 
 

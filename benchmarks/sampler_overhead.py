@@ -16,15 +16,23 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from _common import BIN, ROOT, RESULTS, collect, machine_line, sh
+from _common import BIN, RESULTS, ROOT, collect, machine_line, sh
 
 TASKS = "reach-v3,push-v3,pick-place-v3,drawer-open-v3,button-press-topdown-v3,peg-insert-side-v3"
 
 
 def steps_per_second(dataset: Path, out: Path, sampler: str, steps: int) -> float:
-    proc = sh(BIN / "adademo-train", f"--config_path={ROOT / 'policies' / 'act_state_cpu.yaml'}",
-              "--dataset.repo_id=local/bench", f"--dataset.root={dataset}", f"--steps={steps}", f"--save_freq={steps}",
-              f"--output_dir={out}", f"--sampler={sampler}", "--min_task_weight=0.05")
+    proc = sh(
+        BIN / "adademo-train",
+        f"--config_path={ROOT / 'policies' / 'act_state_cpu.yaml'}",
+        "--dataset.repo_id=local/bench",
+        f"--dataset.root={dataset}",
+        f"--steps={steps}",
+        f"--save_freq={steps}",
+        f"--output_dir={out}",
+        f"--sampler={sampler}",
+        "--min_task_weight=0.05",
+    )
     steps_done, seconds = re.search(r"trained (\d+) steps in ([0-9.]+) s", proc.stdout).groups()
     return int(steps_done) / float(seconds)
 
@@ -39,7 +47,9 @@ def main() -> None:
         dataset = collect(Path(tmp) / "ds", TASKS, 10)
         for r in range(args.repeats):
             for sampler in ("frame", "trajectory") if r % 2 == 0 else ("trajectory", "frame"):
-                speeds[sampler].append(steps_per_second(dataset, Path(tmp) / f"{sampler}{r}", sampler, args.steps))
+                speeds[sampler].append(
+                    steps_per_second(dataset, Path(tmp) / f"{sampler}{r}", sampler, args.steps)
+                )
                 print(sampler, speeds[sampler][-1], flush=True)
     frame, traj = statistics.median(speeds["frame"]), statistics.median(speeds["trajectory"])
     lines = [

@@ -13,11 +13,38 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 BIN = Path(sys.executable).parent
 
 
+def rendering_works() -> bool:
+    """Whether this machine renders camera images (checked once, in a child process, as a command would)."""
+    global _RENDERING
+    if _RENDERING is None:
+        probe = "from adademo_lerobot.gl import check_rendering_works; check_rendering_works()"
+        _RENDERING = (
+            subprocess.run([sys.executable, "-c", probe], capture_output=True, timeout=120).returncode == 0
+        )
+    return _RENDERING
+
+
+_RENDERING: bool | None = None
+# Tests of camera images. Without working rendering they are skipped on a developer's machine, but they fail in
+# CI (CI=true), which is meant to run them: setup.sh installs libosmesa6 there.
+requires_rendering = pytest.mark.requires_rendering
+
+
+def pytest_runtest_setup(item):
+    if item.get_closest_marker("requires_rendering") and not rendering_works():
+        message = "camera images do not render on this machine (apt-get install libosmesa6)"
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"CI must run the rendering tests: {message}")
+        pytest.skip(message)
+
+
 def run_cli(command: str, *args: str, check: bool = True, timeout: int = 900) -> subprocess.CompletedProcess:
     """Run one of our console scripts as a user would."""
     proc = subprocess.run([str(BIN / command), *args], capture_output=True, text=True, timeout=timeout)
     if check and proc.returncode != 0:
-        raise AssertionError(f"{command} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+        raise AssertionError(
+            f"{command} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        )
     return proc
 
 
@@ -35,8 +62,13 @@ def reach_push_dataset(tmp_path_factory) -> Path:
     """The issue's example: 3 demos each of reach-v3 and push-v3, collected by `adademo-collect`."""
     root = tmp_path_factory.mktemp("collect") / "demo"
     run_cli(
-        "adademo-collect", "--suite.type=metaworld", "--suite.tasks=reach-v3,push-v3", "--episodes_per_task=3",
-        "--dataset.repo_id=local/demo", f"--dataset.root={root}", "--seed=0",
+        "adademo-collect",
+        "--suite.type=metaworld",
+        "--suite.tasks=reach-v3,push-v3",
+        "--episodes_per_task=3",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={root}",
+        "--seed=0",
     )
     return root
 
@@ -51,17 +83,36 @@ def file_digests(root: Path) -> dict[str, str]:
     }
 
 
-TINY_ACT = ["--policy.type=act", "--policy.dim_model=32", "--policy.dim_feedforward=64", "--policy.n_heads=2",
-            "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1", "--policy.n_vae_encoder_layers=1",
-            "--policy.chunk_size=10", "--policy.n_action_steps=5", "--policy.device=cpu", "--batch_size=8"]
+TINY_ACT = [
+    "--policy.type=act",
+    "--policy.dim_model=32",
+    "--policy.dim_feedforward=64",
+    "--policy.n_heads=2",
+    "--policy.n_encoder_layers=1",
+    "--policy.n_decoder_layers=1",
+    "--policy.n_vae_encoder_layers=1",
+    "--policy.chunk_size=10",
+    "--policy.n_action_steps=5",
+    "--policy.device=cpu",
+    "--batch_size=8",
+]
 
 
 @pytest.fixture(scope="session")
 def act_run(reach_push_dataset, tmp_path_factory):
     """A weak ACT (4 steps) trained by `adademo-train` on the reach/push dataset."""
     out = tmp_path_factory.mktemp("act") / "run"
-    run_cli("adademo-train", "--dataset.repo_id=local/demo", f"--dataset.root={reach_push_dataset}", *TINY_ACT,
-            "--steps=4", "--save_freq=2", f"--output_dir={out}", "--sampler=trajectory", "--min_task_weight=0.3")
+    run_cli(
+        "adademo-train",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={reach_push_dataset}",
+        *TINY_ACT,
+        "--steps=4",
+        "--save_freq=2",
+        f"--output_dir={out}",
+        "--sampler=trajectory",
+        "--min_task_weight=0.3",
+    )
     return out
 
 
@@ -70,10 +121,22 @@ def stock_act_checkpoint(reach_push_dataset, tmp_path_factory) -> Path:
     """An ACT trained for 2 steps by stock `lerobot-train` on the reach/push dataset."""
     out = tmp_path_factory.mktemp("stock") / "run"
     proc = subprocess.run(
-        [str(BIN / "lerobot-train"), "--dataset.repo_id=local/demo", f"--dataset.root={reach_push_dataset}",
-         *TINY_ACT, "--steps=2", "--save_freq=2", f"--output_dir={out}", "--policy.push_to_hub=false",
-         "--num_workers=0", "--eval_freq=0", "--wandb.enable=false"],
-        capture_output=True, text=True, timeout=600,
+        [
+            str(BIN / "lerobot-train"),
+            "--dataset.repo_id=local/demo",
+            f"--dataset.root={reach_push_dataset}",
+            *TINY_ACT,
+            "--steps=2",
+            "--save_freq=2",
+            f"--output_dir={out}",
+            "--policy.push_to_hub=false",
+            "--num_workers=0",
+            "--env_eval_freq=0",
+            "--wandb.enable=false",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return out / "checkpoints" / "last" / "pretrained_model"

@@ -4,18 +4,27 @@ import json
 
 import numpy as np
 import pandas as pd
-
-from adademo_lerobot.evaluation import BatchedEvaluator, evaluation_seeds, load_policy
-from adademo_lerobot.suites.base import make_suite
-from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 from conftest import assert_cli_error, run_cli
+
+from adademo_lerobot.evaluation import BatchedEvaluator
+from adademo_lerobot.policy import load_policy
+from adademo_lerobot.seeds import evaluation_seeds
+from adademo_lerobot.suites import make_suite
+from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
 
 def test_eval_cli_writes_records_and_success_rates(act_run, reach_push_dataset, tmp_path):
     ckpt = act_run / "checkpoints" / "last" / "pretrained_model"
     out = tmp_path / "eval"
-    proc = run_cli("adademo-eval", f"--policy.path={ckpt}", f"--dataset.root={reach_push_dataset}",
-                   "--episodes_per_task=3", "--eval.batch_size=2", "--seed=5", f"--output_dir={out}")
+    proc = run_cli(
+        "adademo-eval",
+        f"--policy.path={ckpt}",
+        f"--dataset.root={reach_push_dataset}",
+        "--episodes_per_task=3",
+        "--eval.batch_size=2",
+        "--seed=5",
+        f"--output_dir={out}",
+    )
     assert "reach-v3" in proc.stdout and "average" in proc.stdout
     records = pd.read_parquet(out / "eval_episodes.parquet")
     assert len(records) == 6
@@ -25,7 +34,9 @@ def test_eval_cli_writes_records_and_success_rates(act_run, reach_push_dataset, 
         rows = records[records.task == task]
         assert list(rows.seed) == evaluation_seeds(5, task, 3)
         for _, r in rows.iterrows():
-            np.testing.assert_array_equal(np.asarray(r.initial_state), suite.sample_initial_state(task, r.seed))
+            np.testing.assert_array_equal(
+                np.asarray(r.initial_state), suite.sample_initial_state(task, r.seed)
+            )
             assert 1 <= r.steps <= 300
     summary = json.loads((out / "eval_summary.json").read_text())
     per_task = {row["task"]: row for row in summary["per_task"]}
@@ -36,8 +47,14 @@ def test_eval_cli_writes_records_and_success_rates(act_run, reach_push_dataset, 
 
 def test_eval_runs_a_stock_lerobot_train_checkpoint(stock_act_checkpoint, reach_push_dataset, tmp_path):
     out = tmp_path / "stock_eval"
-    run_cli("adademo-eval", f"--policy.path={stock_act_checkpoint}", f"--dataset.root={reach_push_dataset}",
-            "--episodes_per_task=2", "--eval.batch_size=2", f"--output_dir={out}")
+    run_cli(
+        "adademo-eval",
+        f"--policy.path={stock_act_checkpoint}",
+        f"--dataset.root={reach_push_dataset}",
+        "--episodes_per_task=2",
+        "--eval.batch_size=2",
+        f"--output_dir={out}",
+    )
     records = pd.read_parquet(out / "eval_episodes.parquet")
     assert len(records) == 4 and set(records.task) == {"reach-v3", "push-v3"}
 
@@ -62,9 +79,17 @@ def test_eval_bad_input(act_run, tmp_path):
         return assert_cli_error("adademo-eval", *args, match=match)
 
     ckpt = act_run / "checkpoints" / "last" / "pretrained_model"
-    fails(f"--policy.path={tmp_path / 'nothing'}", "--suite.tasks=reach-v3,push-v3", f"--output_dir={tmp_path}/o",
-          match="no LeRobot checkpoint")
+    fails(
+        f"--policy.path={tmp_path / 'nothing'}",
+        "--suite.tasks=reach-v3,push-v3",
+        f"--output_dir={tmp_path}/o",
+        match="no LeRobot checkpoint",
+    )
     # Suite of 3 tasks: the one-hot (and so observation.environment_state) is one longer than the checkpoint's.
-    fails(f"--policy.path={ckpt}", "--suite.tasks=reach-v3,push-v3,drawer-open-v3", f"--output_dir={tmp_path}/o",
-          match="observation.environment_state")
+    fails(
+        f"--policy.path={ckpt}",
+        "--suite.tasks=reach-v3,push-v3,drawer-open-v3",
+        f"--output_dir={tmp_path}/o",
+        match="observation.environment_state",
+    )
     assert not (tmp_path / "o").exists()

@@ -1,5 +1,6 @@
 """adademo-expand on real datasets and a real (weak) ACT checkpoint: strategies, plan_only, ledger, crash safety."""
 
+import json
 import math
 import shutil
 import signal
@@ -9,15 +10,15 @@ import time
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-
-from adademo_lerobot.algorithm import expansion_state_seed
-from adademo_lerobot.collect import fresh_state_seed
-from adademo_lerobot.dataset.store import read_episode_metadata
-from adademo_lerobot.ledger import read_ledger, read_round_evaluations
-from adademo_lerobot.strategies import planned_demos
-from adademo_lerobot.suites.base import make_suite
-from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 from conftest import BIN, assert_cli_error, file_digests, run_cli
+
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.dataset.store import recover_interrupted_write
+from adademo_lerobot.ledger import read_ledger, read_round_evaluations
+from adademo_lerobot.seeds import expansion_state_seed, fresh_state_seed
+from adademo_lerobot.strategies import planned_demos
+from adademo_lerobot.suites import make_suite
+from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
 TASKS = ("reach-v3", "push-v3")
 
@@ -35,7 +36,9 @@ def ckpt(act_run):
 
 
 def expand(root, *args, check=True):
-    return run_cli("adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args, check=check)
+    return run_cli(
+        "adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args, check=check
+    )
 
 
 def old_files_unchanged(before: dict, after: dict) -> None:
@@ -57,22 +60,36 @@ def check_ledger_agrees(root, round_index):
 
 def test_adademo_collects_only_on_failed_states_within_the_cap(dataset, ckpt):
     before = file_digests(dataset)
-    expand(dataset, f"--policy.path={ckpt}", "--strategy=adademo", "--target_successes=2", "--max_demos_per_task=5",
-           "--eval.batch_size=3")
+    expand(
+        dataset,
+        f"--policy.path={ckpt}",
+        "--strategy=adademo",
+        "--target_successes=2",
+        "--max_demos_per_task=5",
+        "--eval.batch_size=3",
+    )
     eps, new, ledger = check_ledger_agrees(dataset, 1)
     old_files_unchanged(before, file_digests(dataset))
     assert len(eps) == 6 + len(new) and (new["adademo/source"] == "adademo").all()
-    evaluations = {(e["task"], e["seed"]): e for e in read_round_evaluations(dataset, 1) if e["type"] == "eval"}
+    evaluations = {
+        (e["task"], e["seed"]): e for e in read_round_evaluations(dataset, 1) if e["type"] == "eval"
+    }
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS)))
     for _, ep in new.iterrows():
         assert evaluations[(ep.task, ep["adademo/seed"])]["success"] is False
-        np.testing.assert_array_equal(ep["adademo/initial_state"], suite.sample_initial_state(ep.task, ep["adademo/seed"]))
+        np.testing.assert_array_equal(
+            ep["adademo/initial_state"], suite.sample_initial_state(ep.task, ep["adademo/seed"])
+        )
     for r in ledger:
         assert r["demos_added"] <= 5 and r["successes"] <= 2
         assert r["eval_episodes"] == r["successes"] + r["failures"]
         assert r["failures"] == r["demos_added"] + r["expert_failures"]
         assert r["cap_hit"] == (r["demos_added"] == 5)
-        assert r["successes"] == 2 or r["cap_hit"] or r["eval_bound_hit"]  # the loop's stopping rule
+        # The loop stopped for one of its three reasons, and the count says which.
+        if r["successes"] < 2 and not r["cap_hit"]:
+            assert r["eval_bound_hit"] and r["eval_episodes"] == 2 * (2 + 5)  # the default evaluation bound
+        else:
+            assert not r["eval_bound_hit"] and r["eval_episodes"] <= 2 * (2 + 5)
         # The states evaluated are the loop's own samples, in order, and their cost is accounted.
         seeds = [expansion_state_seed(0, 1, r["task"], k) for k in range(r["eval_episodes"])]
         assert all((r["task"], s) in evaluations for s in seeds)
@@ -93,8 +110,14 @@ def test_uniform_adds_exactly_n_per_task_from_fresh_states(dataset):
 
 
 def test_task_only_allocates_like_adademo_from_fresh_states(dataset, ckpt):
-    expand(dataset, f"--policy.path={ckpt}", "--strategy=task_only", "--target_successes=1",
-           "--max_demos_per_task=3", "--plan_episodes_per_task=4")
+    expand(
+        dataset,
+        f"--policy.path={ckpt}",
+        "--strategy=task_only",
+        "--target_successes=1",
+        "--max_demos_per_task=3",
+        "--plan_episodes_per_task=4",
+    )
     _, new, ledger = check_ledger_agrees(dataset, 1)
     for r in ledger:
         sr = r["successes"] / r["eval_episodes"]
@@ -103,57 +126,98 @@ def test_task_only_allocates_like_adademo_from_fresh_states(dataset, ckpt):
         assert r["demos_added"] == r["planned_demos"] - r["expert_failures"]
         rows = new[new.task == r["task"]]
         assert set(rows["adademo/seed"]) <= {fresh_state_seed(0, 1, r["task"], d) for d in range(9)}
-    assert planned_demos(10, 0.5, 100) == 10 and planned_demos(10, 0.0, 7) == 7 and planned_demos(10, 1.0, 5) == 0
+    assert (
+        planned_demos(10, 0.5, 100) == 10
+        and planned_demos(10, 0.0, 7) == 7
+        and planned_demos(10, 1.0, 5) == 0
+    )
 
 
 def test_plan_only_prints_predictions_and_changes_nothing(dataset, ckpt):
     before = file_digests(dataset)
-    proc = expand(dataset, f"--policy.path={ckpt}", "--plan_only=true", "--target_successes=2",
-                  "--max_demos_per_task=4", "--plan_episodes_per_task=3")
+    proc = expand(
+        dataset,
+        f"--policy.path={ckpt}",
+        "--plan_only=true",
+        "--target_successes=2",
+        "--max_demos_per_task=4",
+        "--plan_episodes_per_task=3",
+    )
     assert "predicted demos" in proc.stdout and "total" in proc.stdout and "nothing collected" in proc.stdout
     assert file_digests(dataset) == before
 
 
 def test_second_round_follows_the_first(dataset, ckpt):
     expand(dataset, "--strategy=uniform", "--demos_per_task=1")
-    expand(dataset, f"--policy.path={ckpt}", "--strategy=adademo", "--target_successes=1", "--max_demos_per_task=2")
+    expand(
+        dataset,
+        f"--policy.path={ckpt}",
+        "--strategy=adademo",
+        "--target_successes=1",
+        "--max_demos_per_task=2",
+    )
     assert sorted({r["round"] for r in read_ledger(dataset)}) == [1, 2]
     check_ledger_agrees(dataset, 2)
 
 
 def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, ckpt):
-    args = ["--dataset.repo_id=local/demo", f"--dataset.root={dataset}", f"--policy.path={ckpt}",
-            "--strategy=adademo", "--target_successes=2", "--max_demos_per_task=6", "--commit_every=1",
-            "--eval.batch_size=2"]
+    args = [
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={dataset}",
+        f"--policy.path={ckpt}",
+        "--strategy=adademo",
+        "--target_successes=2",
+        "--max_demos_per_task=6",
+        "--commit_every=1",
+        "--eval.batch_size=2",
+    ]
     episodes_dir = dataset / "meta" / "episodes"
     files_before = len(list(episodes_dir.rglob("*.parquet")))
-    proc = subprocess.Popen([str(BIN / "adademo-expand"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    eps0 = read_episode_metadata(dataset)
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-expand"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     deadline = time.time() + 300
     while len(list(episodes_dir.rglob("*.parquet"))) < files_before + 2:  # two commits done, more coming
         assert time.time() < deadline and proc.poll() is None, "expand ended before it could be killed"
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    survived = read_episode_metadata(dataset) if not (dataset / "meta/adademo/pending_write.json").exists() else None
+    # What the kill left committed: rolling back a half-done write (as the next command does) keeps it all.
+    recover_interrupted_write(dataset)
+    committed = read_episode_metadata(dataset)
+    committed_round_1 = set(zip(committed.task, committed["adademo/seed"], strict=True)) - set(
+        zip(eps0.task, eps0["adademo/seed"], strict=True)
+    )
+    assert len(committed_round_1) >= 2, "the kill came after two commits"
     run_cli("adademo-expand", *args)
     eps, new, ledger = check_ledger_agrees(dataset, 1)
-    if survived is not None:  # every episode finalized before the kill is still there
-        assert set(zip(survived.task, survived["adademo/seed"])) <= set(zip(eps.task, eps["adademo/seed"]))
-    evaluations = {(e["task"], e["seed"]): e for e in read_round_evaluations(dataset, 1) if e["type"] == "eval"}
-    assert all(evaluations[(t, s)]["success"] is False for t, s in zip(new.task, new["adademo/seed"]))
+    assert committed_round_1 <= set(
+        zip(new.task, new["adademo/seed"], strict=True)
+    )  # every committed demo is still there
+    evaluations = {
+        (e["task"], e["seed"]): e for e in read_round_evaluations(dataset, 1) if e["type"] == "eval"
+    }
+    assert all(
+        evaluations[(t, s)]["success"] is False for t, s in zip(new.task, new["adademo/seed"], strict=True)
+    )
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     assert LeRobotDataset("local/demo", root=dataset).num_episodes == len(eps)
+    assert sorted({r["round"] for r in read_ledger(dataset)}) == [1]
     # The same command again starts the next round rather than redoing this one.
-    assert len(read_ledger(dataset)) == 2
+    run_cli("adademo-expand", *args)
+    assert sorted({r["round"] for r in read_ledger(dataset)}) == [1, 2]
+    check_ledger_agrees(dataset, 2)
 
 
 def test_bad_input_gets_one_clear_error_and_no_change(dataset, ckpt, tmp_path):
     before = file_digests(dataset)
 
     def fails(*args, root=dataset, match):
-        return assert_cli_error("adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args,
-                                match=match)
+        return assert_cli_error(
+            "adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args, match=match
+        )
 
     fails(f"--policy.path={ckpt}", "--target_successes=0", match="target_successes")
     fails(f"--policy.path={ckpt}", "--strategy=greedy", match="strategy")
@@ -162,18 +226,44 @@ def test_bad_input_gets_one_clear_error_and_no_change(dataset, ckpt, tmp_path):
     assert file_digests(dataset) == before
 
     three = tmp_path / "three"
-    run_cli("adademo-collect", "--suite.tasks=reach-v3,push-v3,drawer-open-v3", "--episodes_per_task=1",
-            "--dataset.repo_id=local/demo", f"--dataset.root={three}")
+    run_cli(
+        "adademo-collect",
+        "--suite.tasks=reach-v3,push-v3,drawer-open-v3",
+        "--episodes_per_task=1",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={three}",
+    )
     fails(f"--policy.path={ckpt}", root=three, match="observation.environment_state")
 
-    plain = tmp_path / "plain"  # a LeRobot dataset without our columns and files
-    shutil.copytree(reach_push := dataset, plain)
+    plain = tmp_path / "plain"  # a LeRobot dataset of a real robot: no suite to build envs from
+    shutil.copytree(dataset, plain)
     shutil.rmtree(plain / "meta" / "adademo")
     for f in (plain / "meta" / "episodes").rglob("*.parquet"):
         table = pq.read_table(f)
         pq.write_table(table.select([c for c in table.column_names if not c.startswith("adademo/")]), f)
-    fails(f"--policy.path={ckpt}", root=plain, match="adademo-collect")
-    del reach_push
+    info = json.loads((plain / "meta" / "info.json").read_text())
+    (plain / "meta" / "info.json").write_text(json.dumps({**info, "robot_type": "so101_follower"}))
+    before_plain = file_digests(plain)
+    fails(f"--policy.path={ckpt}", root=plain, match="--suite.type")
+    assert file_digests(plain) == before_plain
+
+
+def test_a_damaged_dataset_is_refused_before_anything_is_written(dataset, ckpt):
+    """A truncated data file (a full disk, a killed copy): one error line naming the file, nothing written."""
+    first = sorted((dataset / "data").rglob("*.parquet"))[0]
+    first.write_bytes(first.read_bytes()[: first.stat().st_size // 2])
+    before = file_digests(dataset)
+    for args in (["--strategy=uniform"], [f"--policy.path={ckpt}", "--strategy=adademo"]):
+        last = assert_cli_error(
+            "adademo-expand",
+            "--dataset.repo_id=local/demo",
+            f"--dataset.root={dataset}",
+            *args,
+            match="is damaged",
+        )
+        assert str(first.relative_to(dataset)) in last
+    assert file_digests(dataset) == before
+    assert not (dataset / "meta" / "adademo" / "journal-round-001.jsonl").exists()
 
 
 def test_checkpoint_with_another_action_size_is_refused(dataset, tmp_path):
@@ -189,22 +279,51 @@ def test_checkpoint_with_another_action_size_is_refused(dataset, tmp_path):
     rng = np.random.default_rng(0)
     for _ in range(2):
         for _ in range(30):
-            other.add_frame({"observation.state": rng.normal(size=4).astype(np.float32),
-                             "observation.environment_state": rng.normal(size=41).astype(np.float32),
-                             "action": rng.normal(size=5).astype(np.float32), "task": "reach-v3"})
+            other.add_frame(
+                {
+                    "observation.state": rng.normal(size=4).astype(np.float32),
+                    "observation.environment_state": rng.normal(size=41).astype(np.float32),
+                    "action": rng.normal(size=5).astype(np.float32),
+                    "task": "reach-v3",
+                }
+            )
         other.save_episode()
     other.finalize()
     out = tmp_path / "stock5"
     proc = subprocess.run(
-        [str(BIN / "lerobot-train"), "--dataset.repo_id=local/other", f"--dataset.root={tmp_path / 'other'}",
-         "--policy.type=act", "--policy.dim_model=32", "--policy.dim_feedforward=64", "--policy.n_heads=2",
-         "--policy.n_encoder_layers=1", "--policy.n_decoder_layers=1", "--policy.n_vae_encoder_layers=1",
-         "--policy.chunk_size=10", "--policy.n_action_steps=5", "--policy.device=cpu", "--batch_size=4",
-         "--steps=1", f"--output_dir={out}", "--policy.push_to_hub=false", "--num_workers=0", "--eval_freq=0"],
-        capture_output=True, text=True, timeout=600)
+        [
+            str(BIN / "lerobot-train"),
+            "--dataset.repo_id=local/other",
+            f"--dataset.root={tmp_path / 'other'}",
+            "--policy.type=act",
+            "--policy.dim_model=32",
+            "--policy.dim_feedforward=64",
+            "--policy.n_heads=2",
+            "--policy.n_encoder_layers=1",
+            "--policy.n_decoder_layers=1",
+            "--policy.n_vae_encoder_layers=1",
+            "--policy.chunk_size=10",
+            "--policy.n_action_steps=5",
+            "--policy.device=cpu",
+            "--batch_size=4",
+            "--steps=1",
+            f"--output_dir={out}",
+            "--policy.push_to_hub=false",
+            "--num_workers=0",
+            "--env_eval_freq=0",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     before = file_digests(dataset)
-    last = assert_cli_error("adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={dataset}",
-                            f"--policy.path={out / 'checkpoints/last/pretrained_model'}", match="action shape (5,)")
+    last = assert_cli_error(
+        "adademo-expand",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={dataset}",
+        f"--policy.path={out / 'checkpoints/last/pretrained_model'}",
+        match="action shape (5,)",
+    )
     assert "(4,)" in last
     assert file_digests(dataset) == before

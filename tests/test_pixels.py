@@ -1,23 +1,24 @@
 """pixels_state: a rendered camera image joins the state observation (OSMesa on CPU machines)."""
 
-import ctypes.util
-
 import numpy as np
-import pytest
+from conftest import requires_rendering, run_cli
 
-from conftest import run_cli
-
-pytestmark = pytest.mark.skipif(
-    ctypes.util.find_library("OSMesa") is None, reason="needs libosmesa6 (setup.sh installs it when run as root)"
-)
+pytestmark = requires_rendering
 
 
 def test_pixels_state_dataset_has_camera_frames(tmp_path):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     root = tmp_path / "pix"
-    run_cli("adademo-collect", "--suite.tasks=reach-v3", "--suite.obs_type=pixels_state", "--suite.image_size=64",
-            "--episodes_per_task=1", "--dataset.repo_id=local/pix", f"--dataset.root={root}")
+    run_cli(
+        "adademo-collect",
+        "--suite.tasks=reach-v3",
+        "--suite.obs_type=pixels_state",
+        "--suite.image_size=64",
+        "--episodes_per_task=1",
+        "--dataset.repo_id=local/pix",
+        f"--dataset.root={root}",
+    )
     ds = LeRobotDataset("local/pix", root=root, video_backend="pyav")
     assert ds.meta.features["observation.images.corner2"]["shape"] == (64, 64, 3)
     first, later = ds[0]["observation.images.corner2"], ds[20]["observation.images.corner2"]

@@ -5,10 +5,11 @@ import signal
 import subprocess
 import time
 
-from adademo_lerobot.dataset.store import read_episode_metadata
-from adademo_lerobot.evaluation import evaluation_seeds
-from adademo_lerobot.ledger import read_ledger
 from conftest import BIN, assert_cli_error, run_cli
+
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.ledger import read_ledger
+from adademo_lerobot.seeds import evaluation_seeds
 
 STAGES = ["collect", "train-0", "eval-0", "expand-1", "train-1", "eval-1"]
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -21,7 +22,10 @@ def test_tiny_recipe_end_to_end_with_report(tmp_path):
     state = json.loads((run_dir / "run_state.json").read_text())
     assert list(state["done"]) == STAGES
     eps = read_episode_metadata(run_dir / "dataset")
-    assert set(eps["adademo/round"]) == {0, 1} and (eps[eps["adademo/round"] == 1]["adademo/source"] == "adademo").all()
+    assert (
+        set(eps["adademo/round"]) == {0, 1}
+        and (eps[eps["adademo/round"] == 1]["adademo/source"] == "adademo").all()
+    )
     assert [r["round"] for r in read_ledger(run_dir / "dataset")] == [1, 1]
     for i in (0, 1):  # the fixed evaluation set: same seeds every round, never used for expansion
         import pandas as pd
@@ -30,7 +34,8 @@ def test_tiny_recipe_end_to_end_with_report(tmp_path):
         for task in ("reach-v3", "push-v3"):
             assert list(records[records.task == task].seed) == evaluation_seeds(100, task, 2)
         assert not set(records.seed) & set(eps["adademo/seed"])
-    assert (run_dir / "train" / "round-1" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").exists()
+    # Round 1 retrains from scratch for steps proportional to the data (the default schedule): 4 x 8 / 4.
+    assert len(eps) == 8 and training_step(run_dir, 1) == 8
     report = (run_dir / "report" / "report.md").read_text()
     assert "round 0: SR % (demos)" in report and "round 1: SR % (demos)" in report and "reach-v3" in report
     assert "| 1 | adademo |" in report  # the ledger's round
@@ -38,19 +43,79 @@ def test_tiny_recipe_end_to_end_with_report(tmp_path):
         assert (run_dir / "report" / png).read_bytes()[:8] == PNG
 
     # A second arm and a comparison report.
-    uniform = tmp_path / "uniform"
-    run_cli("adademo-run", "--config_path=recipes/tiny.yaml", f"--run_dir={uniform}", "--strategy=uniform",
-            "--train.sampler=task")
+    uniform = tmp_path / "uniform"  # ... fine-tuning from the previous round, as every shipped recipe does
+    run_cli(
+        "adademo-run",
+        "--config_path=recipes/tiny.yaml",
+        f"--run_dir={uniform}",
+        "--strategy=uniform",
+        "--train.sampler=task",
+        "--train.mode=finetune",
+        "--train.finetune_steps=3",
+    )
+    assert training_step(uniform, 1) == 3
+    round_1 = json.loads(
+        (uniform / "train/round-1/checkpoints/last/pretrained_model/train_config.json").read_text()
+    )
+    assert round_1["policy"]["pretrained_path"] == str(
+        (uniform / "train/round-0/checkpoints/last/pretrained_model").resolve()
+    )
     out = tmp_path / "compare"
     run_cli("adademo-report", f"--run_dir={run_dir}", "--compare", str(uniform), f"--output_dir={out}")
     compared = (out / "report.md").read_text()
-    assert "| adademo | adademo + trajectory sampler |" in compared and "| uniform | uniform + task sampler |" in compared
+    assert (
+        "| adademo | adademo + trajectory sampler |" in compared
+        and "| uniform | uniform + task sampler |" in compared
+    )
+
+
+def training_step(run_dir, i: int) -> int:
+    path = run_dir / "train" / f"round-{i}" / "checkpoints" / "last" / "training_state" / "training_step.json"
+    return json.loads(path.read_text())["step"]
+
+
+def test_a_kill_between_the_ledger_and_the_journal_end_loses_no_round(tmp_path):
+    """The round number is one truth: a kill right after round 1's ledger write, before its journal is closed,
+    must not make the rerun skip round 2 (it used to record round 2 as done with no demos)."""
+    import os
+
+    run_dir = tmp_path / "run"
+    args = ["--config_path=recipes/tiny.yaml", f"--run_dir={run_dir}", "--rounds=2"]
+    proc = subprocess.run(
+        [str(BIN / "adademo-run"), *args],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env={**os.environ, "ADADEMO_TEST_KILL_AFTER_LEDGER": "1"},
+    )
+    assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
+    dataset = run_dir / "dataset"
+    assert [r["round"] for r in read_ledger(dataset)] == [1, 1]
+    assert (dataset / "meta" / "adademo" / "journal-round-001.jsonl").exists()  # the kill came before its end
+    run_cli("adademo-run", *args)
+    state = json.loads((run_dir / "run_state.json").read_text())["done"]
+    assert state["expand-1"]["result"]["demos_added"] == {"reach-v3": 2, "push-v3": 2}
+    assert state["expand-2"]["result"]["demos_added"] == {
+        "reach-v3": 2,
+        "push-v3": 2,
+    }  # round 2 was collected
+    assert [r["round"] for r in read_ledger(dataset)] == [1, 1, 2, 2]
+    eps = read_episode_metadata(dataset)
+    assert sorted(eps["adademo/round"].value_counts().items()) == [(0, 4), (1, 4), (2, 4)]
+    assert not list((dataset / "meta" / "adademo").glob("journal-round-*.jsonl"))
 
 
 def test_kill_midway_then_rerun_finishes_without_redoing_stages(tmp_path):
     run_dir = tmp_path / "killed"
-    args = ["--config_path=recipes/tiny.yaml", f"--run_dir={run_dir}", "--train.steps=40", "--train.save_freq=10"]
-    proc = subprocess.Popen([str(BIN / "adademo-run"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    args = [
+        "--config_path=recipes/tiny.yaml",
+        f"--run_dir={run_dir}",
+        "--train.steps=40",
+        "--train.save_freq=10",
+    ]
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-run"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     state_path = run_dir / "run_state.json"
     deadline = time.time() + 600
     while True:
@@ -72,9 +137,19 @@ def test_kill_midway_then_rerun_finishes_without_redoing_stages(tmp_path):
 
 def test_run_bad_input(tmp_path):
     assert_cli_error("adademo-run", "--config_path=recipes/tiny.yaml", match="--run_dir")
-    assert_cli_error("adademo-run", "--config_path=recipes/tiny.yaml", f"--run_dir={tmp_path / 'r'}",
-                     "--strategy=random", match="strategy")
-    assert_cli_error("adademo-run", "--config_path=recipes/tiny.yaml", f"--run_dir={tmp_path / 'r'}",
-                     "--target_successes=[0]", match="target_successes")
+    assert_cli_error(
+        "adademo-run",
+        "--config_path=recipes/tiny.yaml",
+        f"--run_dir={tmp_path / 'r'}",
+        "--strategy=random",
+        match="strategy",
+    )
+    assert_cli_error(
+        "adademo-run",
+        "--config_path=recipes/tiny.yaml",
+        f"--run_dir={tmp_path / 'r'}",
+        "--target_successes=[0]",
+        match="target_successes",
+    )
     assert_cli_error("adademo-report", f"--run_dir={tmp_path}", match="run_state.json")
     assert not (tmp_path / "r").exists()

@@ -25,7 +25,9 @@ def draw(weights: np.ndarray, n: int = 200_000, seed: int = 0) -> np.ndarray:
 
 
 def shares_from_draws(indices: np.ndarray, eps: pd.DataFrame) -> tuple[pd.Series, np.ndarray]:
-    episode_of_frame = np.repeat(np.arange(len(eps)), (eps.dataset_to_index - eps.dataset_from_index).to_numpy())
+    episode_of_frame = np.repeat(
+        np.arange(len(eps)), (eps.dataset_to_index - eps.dataset_from_index).to_numpy()
+    )
     ep = episode_of_frame[indices]
     ep_freq = np.bincount(ep, minlength=len(eps)) / len(indices)
     task_freq = pd.Series(ep_freq).groupby(eps["task"].to_numpy()).sum()
@@ -54,7 +56,9 @@ def test_trajectory_floor_lifts_small_tasks_and_keeps_proportions():
     expected = {"easy": 0.25, "mid": 0.75 * 6 / 18, "hard": 0.75 * 12 / 18}
     for task, share in expected.items():
         assert abs(task_freq[task] - share) < TOL, (task, task_freq[task], share)
-    assert floor_shares({"a": 0.05, "b": 0.15, "c": 0.8}, 0.2) == pytest.approx({"a": 0.2, "b": 0.2, "c": 0.6})
+    assert floor_shares({"a": 0.05, "b": 0.15, "c": 0.8}, 0.2) == pytest.approx(
+        {"a": 0.2, "b": 0.2, "c": 0.6}
+    )
 
 
 def test_task_sampler_is_uniform_over_tasks_then_trajectories():

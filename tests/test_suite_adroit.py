@@ -1,16 +1,17 @@
 """The Adroit suite: exact initial-state restore, the unified 30-D action, the success rule, experts, datasets, CLI."""
 
-import ctypes.util
 import json
 import os
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import requires_rendering, run_cli
 
-from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector
-from adademo_lerobot.dataset.store import read_episode_metadata
+from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.suites import make_suite, suite_config_from_dict
 from adademo_lerobot.suites.adroit import (
     OBS_DIM,
     SUCCESS_STEPS,
@@ -18,14 +19,11 @@ from adademo_lerobot.suites.adroit import (
     TASKS,
     UNIFIED_ACTUATORS,
     AdroitSuiteConfig,
-    env_max_episode_steps,
     make_raw_env,
     native_obs_indices,
-    register_envs,
     state_dict_of,
 )
-from adademo_lerobot.suites.base import SuiteConfig, make_suite
-from conftest import run_cli
+from adademo_lerobot.suites.gym_robotics import env_max_episode_steps, register_envs
 
 DOOR, HAMMER, PEN, RELOCATE = TASKS
 
@@ -37,7 +35,6 @@ def suite():
 
 def _actions(n=50, seed=0):
     return np.random.default_rng(seed).uniform(-1.0, 1.0, size=(n, 30)).astype(np.float32)
-
 
 
 def test_initial_state_is_the_stock_env_state_and_restores_like_the_stock_env(suite):
@@ -75,8 +72,12 @@ def test_initial_state_sizes(suite):
 
 
 def test_unified_action_reaches_the_right_native_actuators_and_unused_dims_do_nothing(suite):
-    expected_native = {DOOR: list(range(2, 30)), HAMMER: [3, 4] + list(range(6, 30)), PEN: list(range(6, 30)),
-                       RELOCATE: list(range(30))}
+    expected_native = {
+        DOOR: list(range(2, 30)),
+        HAMMER: [3, 4] + list(range(6, 30)),
+        PEN: list(range(6, 30)),
+        RELOCATE: list(range(30)),
+    }
     for task in TASKS:
         env = suite.make_env(task, terminate_on_success=False)
         raw = env._raw
@@ -91,17 +92,26 @@ def test_unified_action_reaches_the_right_native_actuators_and_unused_dims_do_no
         unused = np.setdiff1d(np.arange(30), env.native_index)
         other = action.copy()
         other[unused] = -other[unused]
-        a, b = suite.make_env(task, terminate_on_success=False), suite.make_env(task, terminate_on_success=False)
+        a, b = (
+            suite.make_env(task, terminate_on_success=False),
+            suite.make_env(task, terminate_on_success=False),
+        )
         obs_a, _ = a.reset(seed=6)
         obs_b, _ = b.reset(seed=6)
-        for t in range(20):
+        for _t in range(20):
             obs_a, *_ = a.step(action)
             obs_b, *_ = b.step(other)
         np.testing.assert_array_equal(obs_a["environment_state"], obs_b["environment_state"])
 
 
 def test_observation_layout_onehot_dimensions_and_step_limits(suite):
-    assert (suite.name, suite.fps, suite.action_dim, suite.state_dim, suite.env_state_dim) == ("adroit", 100, 30, 30, 96)
+    assert (suite.name, suite.fps, suite.action_dim, suite.state_dim, suite.env_state_dim) == (
+        "adroit",
+        100,
+        30,
+        30,
+        96,
+    )
     assert AdroitSuiteConfig().max_episode_steps == 200
     for i, task in enumerate(TASKS):
         assert suite.fps == round(1.0 / make_raw_env(task).dt)
@@ -164,7 +174,7 @@ def test_task_names_short_and_full_stored_canonical():
     s = make_suite(AdroitSuiteConfig(tasks="relocate,AdroitHandDoor-v1"))
     assert s.tasks == [RELOCATE, DOOR] and s.config.tasks == f"{RELOCATE},{DOOR}"
     assert make_suite(AdroitSuiteConfig(tasks="all")).tasks == TASKS
-    stored = SuiteConfig.from_dict(s.config.to_dict())
+    stored = suite_config_from_dict(s.config.to_dict())
     assert stored.to_dict() == s.config.to_dict() and stored.type == "adroit"
     with pytest.raises(AdaDemoError, match="relocate"):
         make_suite(AdroitSuiteConfig(tasks="relocat"))
@@ -192,20 +202,28 @@ def test_policy_collector_runs_a_torchscript_expert():
         obs, _ = s.make_env(RELOCATE).reset(seed=0)
         np.testing.assert_allclose(act(obs), 0.5, atol=1e-6)
         result = collector.collect(RELOCATE, s.sample_initial_state(RELOCATE, 0), 0)
-        assert not result.succeeded and result.env_steps == 20  # a constant action does not relocate the ball
+        assert (
+            result.demonstration is None and result.env_steps == 20
+        )  # a constant action does not relocate the ball
     finally:
         os.remove(path)
     with pytest.raises(AdaDemoError, match="collector.path"):
         make_collector(PolicyCollectorConfig(), s)
 
 
-
 def test_adademo_collect_cli_writes_a_stock_lerobot_dataset(tmp_path):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     root = tmp_path / "adroit"
-    run_cli("adademo-collect", "--suite.type=adroit", "--suite.tasks=door", "--episodes_per_task=2",
-            "--dataset.repo_id=local/adroit", f"--dataset.root={root}", "--seed=0")
+    run_cli(
+        "adademo-collect",
+        "--suite.type=adroit",
+        "--suite.tasks=door",
+        "--episodes_per_task=2",
+        "--dataset.repo_id=local/adroit",
+        f"--dataset.root={root}",
+        "--seed=0",
+    )
     ds = LeRobotDataset("local/adroit", root=root)
     assert ds.num_episodes == 2 and ds.fps == 100 and ds.meta.robot_type == "adroit"
     assert ds.features["observation.state"]["shape"] == (30,)
@@ -213,20 +231,25 @@ def test_adademo_collect_cli_writes_a_stock_lerobot_dataset(tmp_path):
     assert ds.features["action"]["shape"] == (30,)
     assert ds[0]["task"] == DOOR
     suite_cfg = json.loads((root / "meta" / "adademo" / "suite.json").read_text())
-    assert suite_cfg["type"] == "adroit" and suite_cfg["tasks"] == DOOR and suite_cfg["max_episode_steps"] == 200
+    assert (
+        suite_cfg["type"] == "adroit" and suite_cfg["tasks"] == DOOR and suite_cfg["max_episode_steps"] == 200
+    )
     meta = read_episode_metadata(root)
     assert set(meta["adademo/suite"]) == {"adroit"} and set(meta["adademo/collector"]) == {"adroit-scripted"}
-    from adademo_lerobot.envs import AdaDemoEnv
+    from adademo_lerobot.lerobot_plugins.env import AdaDemoEnv
 
     env_cfg = AdaDemoEnv(dataset_root=str(root), task="door")
-    assert env_cfg.task == DOOR and env_cfg.fps == 100 and env_cfg.features["environment_state"].shape == (93,)
+    assert (
+        env_cfg.task == DOOR and env_cfg.fps == 100 and env_cfg.features["environment_state"].shape == (93,)
+    )
 
 
-@pytest.mark.skipif(ctypes.util.find_library("OSMesa") is None and not os.environ.get("MUJOCO_GL"),
-                    reason="needs libosmesa6 or a GPU (MUJOCO_GL=egl)")
+@requires_rendering
 def test_pixels_state_camera_choice():
     """(Images that leave the state exact are in test_suite_contract.py.)"""
-    fixed = make_suite(AdroitSuiteConfig(tasks="pen", obs_type="pixels_state", image_size=32, camera="vil_camera"))
+    fixed = make_suite(
+        AdroitSuiteConfig(tasks="pen", obs_type="pixels_state", image_size=32, camera="vil_camera")
+    )
     assert fixed.make_env(PEN).reset(seed=4)[0]["pixels"]["vil_camera"].shape == (32, 32, 3)
     with pytest.raises(AdaDemoError, match="not a camera"):
         make_suite(AdroitSuiteConfig(tasks="pen", obs_type="pixels_state", camera="nope"))

@@ -3,22 +3,21 @@ suites), demos that replay exactly from the dataset, camera images that leave th
 `adademo-expand` round through the CLI (Fetch and Adroit here; MetaWorld's are in test_collect, test_pixels and
 test_expand)."""
 
-import ctypes.util
-import os
 from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from conftest import TINY_ACT, requires_rendering, run_cli
 
 from adademo_lerobot.collect import collect_fresh
-from adademo_lerobot.collectors.base import ScriptedCollectorConfig, make_collector
-from adademo_lerobot.dataset.store import DemoDataset, read_episode_metadata
+from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.adroit import AdroitSuiteConfig
-from adademo_lerobot.suites.base import make_suite
 from adademo_lerobot.suites.fetch import FetchSuiteConfig
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
-from conftest import TINY_ACT, run_cli
 
 
 @dataclass
@@ -34,13 +33,28 @@ class Case:
 
 CASES = {
     "fetch": Case(FetchSuiteConfig, "all", "all", "push", "reach,push", 2, "fetch-scripted"),
-    "adroit": Case(AdroitSuiteConfig, "door,hammer,pen,relocate", "door,relocate", "relocate", "door,relocate", 1,
-                   "adroit-scripted"),
+    "adroit": Case(
+        AdroitSuiteConfig,
+        "door,hammer,pen,relocate",
+        "door,relocate",
+        "relocate",
+        "door,relocate",
+        1,
+        "adroit-scripted",
+    ),
 }
-ALL_SUITES = {**CASES, "metaworld": Case(MetaWorldSuiteConfig, "reach-v3,push-v3,pick-place-v3,peg-insert-side-v3,"
-                                          "door-open-v3", "", "", "", 0, "metaworld-scripted")}
-needs_gl = pytest.mark.skipif(ctypes.util.find_library("OSMesa") is None and not os.environ.get("MUJOCO_GL"),
-                              reason="needs libosmesa6 or a GPU (MUJOCO_GL=egl)")
+ALL_SUITES = {
+    **CASES,
+    "metaworld": Case(
+        MetaWorldSuiteConfig,
+        "reach-v3,push-v3,pick-place-v3,peg-insert-side-v3,door-open-v3",
+        "",
+        "",
+        "",
+        0,
+        "metaworld-scripted",
+    ),
+}
 
 
 def _actions(suite, n=50, seed=0):
@@ -65,8 +79,11 @@ def test_restore_in_a_used_env_equals_a_fresh_env_for_50_steps(name):
         for t, action in enumerate(_actions(suite, 50)):
             obs_used, *_ = used.step(action)
             obs_fresh, *_ = fresh.step(action)
-            np.testing.assert_array_equal(obs_used["environment_state"], obs_fresh["environment_state"],
-                                          err_msg=f"{task} diverged at step {t}")
+            np.testing.assert_array_equal(
+                obs_used["environment_state"],
+                obs_fresh["environment_state"],
+                err_msg=f"{task} diverged at step {t}",
+            )
 
 
 @pytest.mark.parametrize("name", ALL_SUITES)
@@ -99,12 +116,15 @@ def test_collected_demos_replay_exactly_from_the_dataset(name, tmp_path):
     collector = make_collector(ScriptedCollectorConfig(), suite)
     assert collector.name == CASES[name].collector
     dataset = DemoDataset("local/replay", tmp_path / "ds", suite.config)
-    collect_fresh(suite, collector, dataset, {t: 1 for t in suite.tasks}, seed=3, round_index=0, source="initial")
+    collect_fresh(
+        suite, collector, dataset, dict.fromkeys(suite.tasks, 1), seed=3, round_index=0, source="initial"
+    )
     meta = read_episode_metadata(tmp_path / "ds")
     assert list(meta["task"]) == suite.tasks and set(meta["adademo/collector"]) == {collector.name}
     for ep, row in meta.iterrows():
-        np.testing.assert_array_equal(row["adademo/initial_state"],
-                                      suite.sample_initial_state(row["task"], row["adademo/seed"]))
+        np.testing.assert_array_equal(
+            row["adademo/initial_state"], suite.sample_initial_state(row["task"], row["adademo/seed"])
+        )
         ds = LeRobotDataset("local/replay", root=tmp_path / "ds", episodes=[ep])
         env_state = np.stack([np.asarray(x) for x in ds.hf_dataset["observation.environment_state"]])
         state = np.stack([np.asarray(x) for x in ds.hf_dataset["observation.state"]])
@@ -121,7 +141,7 @@ def test_collected_demos_replay_exactly_from_the_dataset(name, tmp_path):
         assert success, f"episode {ep} ({row['task']}) does not end in success on replay"
 
 
-@needs_gl
+@requires_rendering
 @pytest.mark.parametrize("name", CASES)
 def test_pixels_state_adds_a_camera_image_and_keeps_the_state_exact(name):
     from adademo_lerobot.dataset.features import dataset_features
@@ -156,15 +176,31 @@ def test_one_adademo_expand_round(name, tmp_path):
     case = CASES[name]
     root = tmp_path / name
     common = [f"--dataset.repo_id=local/{name}", f"--dataset.root={root}"]
-    run_cli("adademo-collect", f"--suite.type={name}", f"--suite.tasks={case.expand_tasks}",
-            f"--episodes_per_task={case.expand_demos}", *common)
+    run_cli(
+        "adademo-collect",
+        f"--suite.type={name}",
+        f"--suite.tasks={case.expand_tasks}",
+        f"--episodes_per_task={case.expand_demos}",
+        *common,
+    )
     run_cli("adademo-train", *common, *TINY_ACT, "--steps=2", f"--output_dir={tmp_path / 'train'}")
     ckpt = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
-    run_cli("adademo-expand", *common, f"--policy.path={ckpt}", "--strategy=adademo", "--target_successes=1",
-            f"--max_demos_per_task={case.expand_demos}", "--eval.batch_size=2")
+    run_cli(
+        "adademo-expand",
+        *common,
+        f"--policy.path={ckpt}",
+        "--strategy=adademo",
+        "--target_successes=1",
+        f"--max_demos_per_task={case.expand_demos}",
+        "--eval.batch_size=2",
+    )
     eps = read_episode_metadata(root)
     ledger = read_ledger(root)
     assert sorted(r["task"] for r in ledger) == sorted(set(eps.task))
     for r in ledger:
-        assert r["demos_added"] == int(((eps.task == r["task"]) & (eps["adademo/round"] == 1)).sum()) <= case.expand_demos
+        assert (
+            r["demos_added"]
+            == int(((eps.task == r["task"]) & (eps["adademo/round"] == 1)).sum())
+            <= case.expand_demos
+        )
         assert r["eval_episodes"] == r["successes"] + r["failures"]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.suites.base import SuiteConfig, make_suite
+from adademo_lerobot.suites import make_suite, suite_config_from_dict
 from adademo_lerobot.suites.metaworld import MT10, MetaWorldSuiteConfig, make_raw_env
 
 TASKS = ["reach-v3", "push-v3", "pick-place-v3", "peg-insert-side-v3", "door-open-v3"]
@@ -73,7 +73,12 @@ def test_sampler_envs_of_the_4_most_recent_tasks_are_kept_and_states_do_not_depe
     np.testing.assert_array_equal(suite.sample_initial_state("reach-v3", 3), first)
     assert suite._samplers["reach-v3"] is reach_env  # reused, not rebuilt, while among the 4 most recent
     suite.sample_initial_state("drawer-open-v3", 3)
-    assert list(suite._samplers) == ["pick-place-v3", "door-open-v3", "reach-v3", "drawer-open-v3"]  # push closed
+    assert list(suite._samplers) == [
+        "pick-place-v3",
+        "door-open-v3",
+        "reach-v3",
+        "drawer-open-v3",
+    ]  # push closed
     np.testing.assert_array_equal(suite.sample_initial_state("reach-v3", 3), first)
 
 
@@ -84,14 +89,13 @@ def test_pending_initial_state_for_vector_envs(suite):
     envs = gym.vector.SyncVectorEnv([lambda: suite.make_env("reach-v3") for _ in range(2)])
     envs.set_attr("pending_initial_state", states)
     envs.reset()
-    for env, state in zip(envs.envs, states):
+    for env, state in zip(envs.envs, states, strict=True):
         np.testing.assert_array_equal(env.initial_state, state)
 
 
 def test_a_held_sub_env_stops_simulating_after_its_episode_until_given_a_new_state(suite):
     """Batched evaluation: the finished sub-env repeats its final observation and its simulator stays still."""
     import gymnasium as gym
-
     from lerobot.envs.metaworld import TASK_POLICY_MAPPING
 
     expert = TASK_POLICY_MAPPING["reach-v3"]()
@@ -145,7 +149,7 @@ def test_mt10_group_and_any_v3_task():
     assert suite.tasks == MT10
     suite = make_suite(MetaWorldSuiteConfig(tasks="assembly-v3,hammer-v3"))
     assert suite.tasks == ["assembly-v3", "hammer-v3"]
-    stored = SuiteConfig.from_dict(suite.config.to_dict())
+    stored = suite_config_from_dict(suite.config.to_dict())
     assert stored.to_dict() == suite.config.to_dict()
 
 

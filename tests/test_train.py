@@ -1,6 +1,7 @@
 """adademo-train on real datasets: ACT and Diffusion, reload, fine-tune from stock lerobot-train, resume, errors."""
 
 import json
+import re
 import shutil
 import signal
 import subprocess
@@ -8,12 +9,18 @@ import time
 
 import numpy as np
 import torch
-
 from conftest import BIN, TINY_ACT, assert_cli_error, run_cli
 
-TINY_DIFFUSION = ["--policy.type=diffusion", "--policy.down_dims=[32,64]", "--policy.diffusion_step_embed_dim=32",
-                  "--policy.horizon=16", "--policy.n_action_steps=8", "--policy.num_inference_steps=4",
-                  "--policy.device=cpu", "--batch_size=8"]
+TINY_DIFFUSION = [
+    "--policy.type=diffusion",
+    "--policy.down_dims=[32,64]",
+    "--policy.diffusion_step_embed_dim=32",
+    "--policy.horizon=16",
+    "--policy.n_action_steps=8",
+    "--policy.num_inference_steps=4",
+    "--policy.device=cpu",
+    "--batch_size=8",
+]
 
 
 def data_args(root):
@@ -48,7 +55,8 @@ def test_act_checkpoint_is_standard_and_reloads_to_identical_actions(act_run, re
     ckpt = act_run / "checkpoints" / "last" / "pretrained_model"
     assert (act_run / "checkpoints" / "000004" / "training_state" / "training_step.json").exists()
     assert {"config.json", "model.safetensors", "policy_preprocessor.json", "train_config.json"} <= {
-        p.name for p in ckpt.iterdir()}
+        p.name for p in ckpt.iterdir()
+    }
     config = json.loads((ckpt / "config.json").read_text())
     assert config["type"] == "act" and config["normalization_mapping"]["ENV"] == "MEAN_STD"
     train_cfg = json.loads((ckpt / "train_config.json").read_text())
@@ -63,19 +71,38 @@ def test_act_checkpoint_is_standard_and_reloads_to_identical_actions(act_run, re
     assert info["episodes_per_task"] == {"reach-v3": 3, "push-v3": 3}
 
 
-def test_diffusion_trains_and_reloads(reach_push_dataset, tmp_path):
+def test_diffusion_learns_and_reloads(reach_push_dataset, tmp_path):
     out = tmp_path / "diffusion"
-    run_cli("adademo-train", *data_args(reach_push_dataset), *TINY_DIFFUSION, "--steps=2", f"--output_dir={out}",
-            "--sampler=task")
+    proc = run_cli(
+        "adademo-train",
+        *data_args(reach_push_dataset),
+        *TINY_DIFFUSION,
+        "--policy.optimizer_lr=0.001",
+        "--batch_size=16",
+        "--steps=120",
+        "--log_freq=30",
+        f"--output_dir={out}",
+        "--sampler=task",
+    )
+    losses = [float(x) for x in re.findall(r"loss:([0-9.]+)", proc.stdout)]
+    assert len(losses) == 4 and losses[-1] < 0.95 * losses[0], losses  # the denoising loss fell: it learned
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     assert json.loads((ckpt / "config.json").read_text())["type"] == "diffusion"
-    np.testing.assert_array_equal(first_action(ckpt, reach_push_dataset, 1), first_action(ckpt, reach_push_dataset, 1))
+    np.testing.assert_array_equal(
+        first_action(ckpt, reach_push_dataset, 1), first_action(ckpt, reach_push_dataset, 1)
+    )
 
 
 def test_fine_tune_from_a_stock_lerobot_train_checkpoint(reach_push_dataset, stock_act_checkpoint, tmp_path):
     out = tmp_path / "finetuned"
-    run_cli("adademo-train", *data_args(reach_push_dataset), f"--policy.path={stock_act_checkpoint}", "--steps=2",
-            "--batch_size=8", f"--output_dir={out}")
+    run_cli(
+        "adademo-train",
+        *data_args(reach_push_dataset),
+        f"--policy.path={stock_act_checkpoint}",
+        "--steps=2",
+        "--batch_size=8",
+        f"--output_dir={out}",
+    )
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     assert json.loads((ckpt / "config.json").read_text())["dim_model"] == 32
     assert first_action(ckpt, reach_push_dataset).shape == (1, 4)
@@ -84,7 +111,9 @@ def test_fine_tune_from_a_stock_lerobot_train_checkpoint(reach_push_dataset, sto
 def test_resume_after_kill_loses_at_most_the_steps_since_the_last_checkpoint(reach_push_dataset, tmp_path):
     out = tmp_path / "killed"
     args = [*data_args(reach_push_dataset), *TINY_ACT, "--steps=400", "--save_freq=3", f"--output_dir={out}"]
-    proc = subprocess.Popen([str(BIN / "adademo-train"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-train"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     deadline = time.time() + 300
     while not (out / "checkpoints" / "000006" / "training_state" / "training_step.json").exists():
         assert time.time() < deadline and proc.poll() is None, "training did not reach step 6"
@@ -95,10 +124,22 @@ def test_resume_after_kill_loses_at_most_the_steps_since_the_last_checkpoint(rea
 
     last = find_last_checkpoint(out)
     assert int(last.name) >= 6
-    resumed = run_cli("adademo-train", *data_args(reach_push_dataset), "--steps=400", f"--output_dir={out}",
-                      "--resume=true", "--batch_size=8", "--save_freq=3")
+    resumed = run_cli(
+        "adademo-train",
+        *data_args(reach_push_dataset),
+        "--steps=400",
+        f"--output_dir={out}",
+        "--resume=true",
+        "--batch_size=8",
+        "--save_freq=3",
+    )
     assert f"trained {400 - int(last.name)} steps" in resumed.stdout
-    assert json.loads((out / "checkpoints" / "last" / "training_state" / "training_step.json").read_text())["step"] == 400
+    assert (
+        json.loads((out / "checkpoints" / "last" / "training_state" / "training_step.json").read_text())[
+            "step"
+        ]
+        == 400
+    )
 
 
 def test_bad_input(reach_push_dataset, act_run, tmp_path):
@@ -108,16 +149,45 @@ def test_bad_input(reach_push_dataset, act_run, tmp_path):
     common = [*data_args(reach_push_dataset), "--steps=1"]
     fails(*common, "--policy.type=pi0x", f"--output_dir={tmp_path / 'a'}", match="pi0x")
     fails(*common, *TINY_ACT, "--sampler=weighted", f"--output_dir={tmp_path / 'b'}", match="sampler")
-    fails(*common, *TINY_ACT, "--min_task_weight=0.6", f"--output_dir={tmp_path / 'c'}", match="min_task_weight")
+    fails(
+        *common, *TINY_ACT, "--min_task_weight=0.6", f"--output_dir={tmp_path / 'c'}", match="min_task_weight"
+    )
     fails(*common, *TINY_ACT, f"--output_dir={act_run}", match="--resume=true")
+    fails(*common, *TINY_ACT, "--output_dir=/proc/version/out", match="output_dir")
+    # A checkpoint trained on 2 tasks cannot be fine-tuned on a 3-task dataset (one-hot size differs).
+    three = tmp_path / "three"
+    run_cli(
+        "adademo-collect",
+        "--suite.tasks=reach-v3,push-v3,drawer-open-v3",
+        "--episodes_per_task=1",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={three}",
+    )
+    fails(
+        *data_args(three),
+        "--steps=1",
+        f"--policy.path={act_run / 'checkpoints/last/pretrained_model'}",
+        f"--output_dir={tmp_path / 'e'}",
+        match="observation.environment_state",
+    )
+    assert not any((tmp_path / d).exists() for d in "abce")
+
+
+def test_trains_on_a_plain_lerobot_dataset(reach_push_dataset, tmp_path):
+    """Training needs only LeRobot's format: no meta/adademo, no adademo columns, any robot type."""
+    import pyarrow.parquet as pq
+
     plain = tmp_path / "plain"
     shutil.copytree(reach_push_dataset, plain)
     shutil.rmtree(plain / "meta" / "adademo")
-    fails(*data_args(plain), "--steps=1", *TINY_ACT, f"--output_dir={tmp_path / 'd'}", match="adademo-collect")
-    # A checkpoint trained on 2 tasks cannot be fine-tuned on a 3-task dataset (one-hot size differs).
-    three = tmp_path / "three"
-    run_cli("adademo-collect", "--suite.tasks=reach-v3,push-v3,drawer-open-v3", "--episodes_per_task=1",
-            "--dataset.repo_id=local/demo", f"--dataset.root={three}")
-    fails(*data_args(three), "--steps=1", f"--policy.path={act_run / 'checkpoints/last/pretrained_model'}",
-          f"--output_dir={tmp_path / 'e'}", match="observation.environment_state")
-    assert not any((tmp_path / d).exists() for d in "abcde")
+    for f in (plain / "meta" / "episodes").rglob("*.parquet"):
+        table = pq.read_table(f)
+        pq.write_table(table.select([c for c in table.column_names if not c.startswith("adademo/")]), f)
+    info = json.loads((plain / "meta" / "info.json").read_text())
+    (plain / "meta" / "info.json").write_text(json.dumps({**info, "robot_type": "so101_follower"}))
+    out = tmp_path / "out"
+    run_cli(
+        "adademo-train", *data_args(plain), *TINY_ACT, "--steps=2", f"--output_dir={out}", "--sampler=task"
+    )
+    saved = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "adademo_train.json").read_text())
+    assert saved["episodes_per_task"] == {"reach-v3": 3, "push-v3": 3} and saved["suite"] is None

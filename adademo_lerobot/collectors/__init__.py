@@ -1,11 +1,20 @@
-from adademo_lerobot.collectors.base import (
-    CollectionResult,
-    CollectorConfig,
-    Demonstration,
-    ExpertCollector,
-    make_collector,
-)
-from adademo_lerobot.collectors.policy import PolicyCollectorConfig  # registers `--collector.type=policy`
+"""Expert collectors. Importing this package registers `--collector.type=scripted|policy`."""
 
-__all__ = ["CollectionResult", "CollectorConfig", "Demonstration", "ExpertCollector", "PolicyCollectorConfig",
-           "make_collector"]
+from adademo_lerobot.collectors.base import CollectorConfig, ExpertCollector, SimulatedExpertCollector
+from adademo_lerobot.collectors.checkpoint import PolicyCollectorConfig
+from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig
+from adademo_lerobot.suites.base import TaskSuite
+
+
+def make_collector(config: CollectorConfig, suite: TaskSuite) -> ExpertCollector:
+    return config.build(suite)
+
+
+__all__ = [
+    "CollectorConfig",
+    "ExpertCollector",
+    "PolicyCollectorConfig",
+    "ScriptedCollectorConfig",
+    "SimulatedExpertCollector",
+    "make_collector",
+]

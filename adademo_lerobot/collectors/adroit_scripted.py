@@ -26,12 +26,12 @@ Measured success: benchmarks/results/adroit_expert_success.md.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import mujoco
 import numpy as np
 
-from adademo_lerobot.collectors.base import PolicyExpertCollector
+from adademo_lerobot.collectors.base import SimulatedExpertCollector
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.adroit import (
     ACTION_DIM,
@@ -77,7 +77,9 @@ class Kinematics:
         # Arm servos: force = gain * ctrl + bias * q, so ctrl = q * (-bias / gain) holds q (without load).
         self.hold_ratio = float(-self.model.actuator_biasprm[0, 1] / self.model.actuator_gainprm[0, 0])  # 0.4
         # Weight of everything the vertical translation carries, as a command offset (Relocate only).
-        self.gravity_ctrl = float(self.model.body_subtreemass[forearm] * 9.81 / self.model.actuator_gainprm[0, 0])
+        self.gravity_ctrl = float(
+            self.model.body_subtreemass[forearm] * 9.81 / self.model.actuator_gainprm[0, 0]
+        )
         raw.close()
 
     def grasp_site(self, q: np.ndarray) -> np.ndarray:
@@ -98,7 +100,9 @@ def _rate_limit(ref: np.ndarray, goal: np.ndarray, rate: float) -> np.ndarray:
     return goal.copy() if norm <= rate else ref + step * (rate / norm)
 
 
-def _hand(action: np.ndarray, close: float, thumb_closed: np.ndarray = THUMB_OPPOSE, fingers: float = 1.0) -> None:
+def _hand(
+    action: np.ndarray, close: float, thumb_closed: np.ndarray = THUMB_OPPOSE, fingers: float = 1.0
+) -> None:
     """Fingers and thumb from open (0) to closed (1), in place."""
     action[FINGER_FLEX] = -1.0 + close * (fingers + 1.0)
     action[FINGER_SPREAD] = 0.0
@@ -182,7 +186,9 @@ def relocate_expert(kin: Kinematics) -> Callable[[dict], np.ndarray]:
         state["prev"] = q[[ARTX, ARTY, ARTZ]].copy()
         state["tilt_i"] += tilt_ki * (tilt - q[ARRX])
         ctrl = np.zeros(ACTION_DIM)
-        ctrl[[ARTX, ARTY, ARTZ]] = kin.hold_ratio * (translation + kp * (translation - q[[ARTX, ARTY, ARTZ]]) - kd * qd)
+        ctrl[[ARTX, ARTY, ARTZ]] = kin.hold_ratio * (
+            translation + kp * (translation - q[[ARTX, ARTY, ARTZ]]) - kd * qd
+        )
         ctrl[ARTY] += kin.gravity_ctrl
         ctrl[ARRX] = kin.hold_ratio * (tilt + state["tilt_i"])
         ctrl[WRJ0] = pitch - tilt
@@ -194,7 +200,9 @@ def relocate_expert(kin: Kinematics) -> Callable[[dict], np.ndarray]:
     return act
 
 
-def _solve_arm(kin: Kinematics, q: np.ndarray, target: np.ndarray, dofs: np.ndarray, pitch: float) -> np.ndarray:
+def _solve_arm(
+    kin: Kinematics, q: np.ndarray, target: np.ndarray, dofs: np.ndarray, pitch: float
+) -> np.ndarray:
     """Damped least squares on the arm joints `dofs` (unified indices) for S_grasp = target, the wrist WRJ0
     keeping the hand pitch (ARRx + WRJ0) at `pitch`."""
     qq = q.copy()
@@ -239,8 +247,15 @@ def door_expert(kin: Kinematics) -> Callable[[dict], np.ndarray]:
     rate, tol = 0.03, 0.035
     kp, kd, kp_rot, ki, i_max = 2.0, 0.3, 1.0, 0.1, 0.3
     thumb = np.array([0.0, 1.0, 1.0, -1.0, -1.0])
-    state = {"phase": "above", "ref": None, "integral": np.zeros(ACTION_DIM), "prev": None, "t": 0,
-             "roll": 0.0, "hinge_ref": 0.0}
+    state = {
+        "phase": "above",
+        "ref": None,
+        "integral": np.zeros(ACTION_DIM),
+        "prev": None,
+        "t": 0,
+        "roll": 0.0,
+        "hinge_ref": 0.0,
+    }
 
     def bar_point(handle: np.ndarray, latch: float, radius: float) -> np.ndarray:
         return handle - np.array([np.cos(latch), 0.0, -np.sin(latch)]) * (handle_from_axis - radius)
@@ -330,7 +345,9 @@ def pen_expert(kin: Kinematics) -> Callable[[dict], np.ndarray]:
     rotation axis pen x target). Succeeds only when the target is close to the start (about one in five);
     real in-hand rotation needs finger gaiting, which this does not do."""
     gain = 0.1
-    wrist = np.array([(kin.ctrl_low[WRJ1] + kin.ctrl_high[WRJ1]) / 2, (kin.ctrl_low[WRJ0] + kin.ctrl_high[WRJ0]) / 2])
+    wrist = np.array(
+        [(kin.ctrl_low[WRJ1] + kin.ctrl_high[WRJ1]) / 2, (kin.ctrl_low[WRJ0] + kin.ctrl_high[WRJ0]) / 2]
+    )
     low, high = kin.ctrl_low[[WRJ1, WRJ0]], kin.ctrl_high[[WRJ1, WRJ0]]
     state = {"wrist": wrist.copy()}
 
@@ -355,7 +372,7 @@ EXPERTS = {
 }
 
 
-class AdroitScriptedExpert(PolicyExpertCollector):
+class AdroitScriptedExpert(SimulatedExpertCollector):
     name = "adroit-scripted"
 
     def __init__(self, suite, config):

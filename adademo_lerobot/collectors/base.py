@@ -1,4 +1,4 @@
-"""The expert-collector protocol: given (task, initial state) return a demonstration or a failure.
+"""The expert-collector protocol: given (task, initial state) return a demonstration or a counted failure.
 
 Experts are imperfect. A collector retries from the same initial state up to `max_attempts` times (retries
 add small seeded action noise, because a deterministic expert would only repeat its failure); an attempt that
@@ -8,19 +8,25 @@ does not reach success is never a demonstration, it is counted and reported.
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
 
 import draccus
 import numpy as np
 
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.recording import EpisodeRecorder
-from adademo_lerobot.suites.base import TaskSuite, cached_for_task, derive_seed
+from adademo_lerobot.records import CollectionResult, Demonstration
+from adademo_lerobot.seeds import retry_noise_seed
+from adademo_lerobot.suites.base import TaskSuite, cached_for_task
 
 
 @dataclass
 class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
+    """Which expert records the demonstrations (`--collector.type=scripted|policy`); each config builds its
+    own collector for a suite."""
+
     max_attempts: int = 3
     # Frames kept after the first success (the episode also ends at the suite's step limit).
     post_success_frames: int = 5
@@ -35,32 +41,9 @@ class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
     def default_choice_name(cls) -> str | None:
         return "scripted"
 
-
-@dataclass
-class Demonstration:
-    task: str
-    initial_state: np.ndarray
-    seed: int
-    frames: list[dict]
-    attempts: int
-
-
-@dataclass
-class CollectionResult:
-    """What one collection request produced: a demonstration, or None after `attempts` failed attempts."""
-
-    task: str
-    initial_state: np.ndarray
-    seed: int
-    demonstration: Demonstration | None
-    attempts: int
-    env_steps: int
-    failed_attempts: int = 0
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def succeeded(self) -> bool:
-        return self.demonstration is not None
+    @abc.abstractmethod
+    def build(self, suite: TaskSuite) -> ExpertCollector:
+        """The collector this config describes, for `suite`."""
 
 
 class ExpertCollector(Protocol):
@@ -70,9 +53,10 @@ class ExpertCollector(Protocol):
         """A successful demonstration from exactly `initial_state`, or a counted failure."""
 
 
-class PolicyExpertCollector:
-    """Runs a per-task expert action function in the suite's env, recording frames through a wrapper.
+class SimulatedExpertCollector:
+    """Runs an expert's per-step action function in the suite's simulator, recording frames through a wrapper.
 
+    The base of every simulated expert (the scripted ones and a policy checkpoint used as the expert).
     Subclasses provide `expert_for(task)`: a callable from the env observation to an action.
     """
 
@@ -82,7 +66,9 @@ class PolicyExpertCollector:
         if config.max_attempts < 1:
             raise AdaDemoError(f"--collector.max_attempts must be >= 1, got {config.max_attempts}")
         if config.post_success_frames < 0:
-            raise AdaDemoError(f"--collector.post_success_frames must be >= 0, got {config.post_success_frames}")
+            raise AdaDemoError(
+                f"--collector.post_success_frames must be >= 0, got {config.post_success_frames}"
+            )
         self.suite = suite
         self.config = config
         self._envs: dict[str, EpisodeRecorder] = {}
@@ -92,7 +78,10 @@ class PolicyExpertCollector:
 
     def _env(self, task: str) -> EpisodeRecorder:
         return cached_for_task(
-            self._envs, task, lambda: EpisodeRecorder(self.suite.make_env(task, terminate_on_success=False)), keep=4
+            self._envs,
+            task,
+            lambda: EpisodeRecorder(self.suite.make_env(task, terminate_on_success=False)),
+            keep=4,
         )
 
     def collect(self, task: str, initial_state: np.ndarray, seed: int) -> CollectionResult:
@@ -100,7 +89,7 @@ class PolicyExpertCollector:
         result = CollectionResult(task, np.asarray(initial_state, np.float64), seed, None, 0, 0)
         for attempt in range(self.config.max_attempts):
             expert = self.expert_for(task)
-            noise_rng = np.random.default_rng(derive_seed(seed, "retry", attempt))
+            noise_rng = np.random.default_rng(retry_noise_seed(seed, attempt))
             noise = self.config.retry_action_noise if attempt > 0 else 0.0
             obs, _ = env.reset(options={"initial_state": initial_state})
             steps_after_success = None
@@ -120,36 +109,14 @@ class PolicyExpertCollector:
                     break
             result.attempts = attempt + 1
             if env.succeeded:
-                result.demonstration = Demonstration(task, result.initial_state, seed, env.frames, attempt + 1)
+                result.demonstration = Demonstration(
+                    task, result.initial_state, seed, env.frames, attempt + 1
+                )
                 return result
             result.failed_attempts += 1
         return result
 
-
-def make_collector(config: CollectorConfig, suite: TaskSuite) -> ExpertCollector:
-    if config.type == "scripted":
-        if suite.name == "metaworld":
-            from adademo_lerobot.collectors.metaworld_scripted import MetaWorldScriptedExpert
-
-            return MetaWorldScriptedExpert(suite, config)
-        if suite.name == "fetch":
-            from adademo_lerobot.collectors.fetch_scripted import FetchScriptedExpert
-
-            return FetchScriptedExpert(suite, config)
-        if suite.name == "adroit":
-            from adademo_lerobot.collectors.adroit_scripted import AdroitScriptedExpert
-
-            return AdroitScriptedExpert(suite, config)
-        raise AdaDemoError(f"no scripted expert for suite {suite.name!r}")
-    if config.type == "policy":
-        from adademo_lerobot.collectors.policy import CheckpointExpert
-
-        return CheckpointExpert(suite, config)
-    raise AdaDemoError(f"unknown collector type {config.type!r}")
-
-
-@CollectorConfig.register_subclass("scripted")
-@dataclass
-class ScriptedCollectorConfig(CollectorConfig):
-    """The suite's built-in scripted experts (MetaWorld: `metaworld.policies`; Fetch: `fetch_scripted`; Adroit:
-    `adroit_scripted`)."""
+    def close(self) -> None:
+        for env in self._envs.values():
+            env.close()
+        self._envs.clear()

@@ -16,11 +16,11 @@ deterministic function of the initial state.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from adademo_lerobot.collectors.base import PolicyExpertCollector
+from adademo_lerobot.collectors.base import SimulatedExpertCollector
 from adademo_lerobot.suites.fetch import GOAL_DIM, OBS_DIM
 
 STEP = 0.05  # metres of mocap displacement per unit action (the env's own scale)
@@ -178,7 +178,7 @@ EXPERTS = {
 }
 
 
-class FetchScriptedExpert(PolicyExpertCollector):
+class FetchScriptedExpert(SimulatedExpertCollector):
     name = "fetch-scripted"
 
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]:

@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import warnings
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from adademo_lerobot.collectors.base import PolicyExpertCollector
+from adademo_lerobot.collectors.base import SimulatedExpertCollector
 from adademo_lerobot.suites.metaworld import RAW_OBS_DIM
 
 
-class MetaWorldScriptedExpert(PolicyExpertCollector):
+class MetaWorldScriptedExpert(SimulatedExpertCollector):
     name = "metaworld-scripted"
 
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]:

@@ -1,0 +1,1 @@
+"""The LeRobot dataset layer: features, adademo metadata, crash-safe appends, integrity checks."""

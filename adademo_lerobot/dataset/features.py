@@ -1,12 +1,14 @@
-"""LeRobot feature specs for a suite's datasets."""
+"""LeRobot feature specs of a suite's datasets (the one place they are built)."""
 
 from __future__ import annotations
 
-from adademo_lerobot.recording import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from adademo_lerobot.suites.base import TaskSuite
 
 
 def dataset_features(suite: TaskSuite) -> dict[str, dict]:
+    """`observation.state`, `observation.environment_state`, `action` and, for `pixels_state`, the camera."""
+    from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE  # imports torch: here
+
     cfg = suite.config
     features = {
         OBS_STATE: {"dtype": "float32", "shape": (suite.state_dim,), "names": None},

@@ -1,5 +1,6 @@
 """Episode-weighted sampling for training (paper principle C) behind one small protocol."""
 
+from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 from adademo_lerobot.samplers.weights import (
     SAMPLERS,
     FrameUniform,
@@ -10,7 +11,6 @@ from adademo_lerobot.samplers.weights import (
     frame_weights,
     make_sampling_scheme,
 )
-from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 
 __all__ = [
     "SAMPLERS", "FrameUniform", "SamplingScheme", "TaskUniform", "TrajectoryUniform", "WeightedFrameSampler",

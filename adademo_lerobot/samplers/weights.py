@@ -36,7 +36,7 @@ def floor_shares(shares: dict[str, float], floor: float) -> dict[str, float]:
         scaled = {k: remaining * v / total for k, v in free.items()} if total > 0 else {}
         newly = {k for k, v in scaled.items() if v < floor}
         if not newly:
-            return {**{k: floor for k in pinned}, **scaled}
+            return {**dict.fromkeys(pinned, floor), **scaled}
         pinned |= newly
 
 
@@ -112,10 +112,12 @@ def frame_weights(
     usable = np.maximum(ends - starts, 0)
     if (usable == 0).any():
         short = list(episodes.index[usable == 0])
-        raise AdaDemoError(f"episodes {short} are too short to train on (drop_n_last_frames={drop_n_last_frames})")
+        raise AdaDemoError(
+            f"episodes {short} are too short to train on (drop_n_last_frames={drop_n_last_frames})"
+        )
     lengths = pd.Series(usable, index=episodes.index)
     probs = scheme.episode_probabilities(episodes["task"], lengths)
     weights = np.zeros(num_frames, dtype=np.float64)
-    for start, end, p, n in zip(starts, ends, probs, usable):
+    for start, end, p, n in zip(starts, ends, probs, usable, strict=True):
         weights[start:end] = p / n
     return weights / weights.sum()

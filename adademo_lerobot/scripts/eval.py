@@ -2,11 +2,10 @@
 
 from adademo_lerobot.cli import run_command
 from adademo_lerobot.configs import EvalCommandConfig
-from adademo_lerobot.evaluation import run_eval
 
 
 def main() -> None:
-    run_command(run_eval, EvalCommandConfig)
+    run_command("adademo_lerobot.evaluation:run_eval", EvalCommandConfig)
 
 
 if __name__ == "__main__":

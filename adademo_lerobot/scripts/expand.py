@@ -2,11 +2,10 @@
 
 from adademo_lerobot.cli import run_command
 from adademo_lerobot.configs import ExpandConfig
-from adademo_lerobot.expand import run_expand
 
 
 def main() -> None:
-    run_command(run_expand, ExpandConfig)
+    run_command("adademo_lerobot.expand:run_expand", ExpandConfig)
 
 
 if __name__ == "__main__":

@@ -1,11 +1,11 @@
 """adademo-push: push an adademo dataset (with meta/adademo and a per-round dataset card) to the hub."""
 
 from adademo_lerobot.cli import run_command
-from adademo_lerobot.hub import PushConfig, run_push
+from adademo_lerobot.configs import PushConfig
 
 
 def main() -> None:
-    run_command(run_push, PushConfig)
+    run_command("adademo_lerobot.hub:run_push", PushConfig)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 import sys
 
 from adademo_lerobot.cli import run_command
-from adademo_lerobot.report import ReportConfig, run_report
+from adademo_lerobot.configs import ReportConfig
 
 
 def main() -> None:
@@ -14,7 +14,7 @@ def main() -> None:
         dirs = [a for a in argv[i + 1 :] if not a.startswith("--")]
         rest = argv[i + 1 + len(dirs) :]
         sys.argv = [sys.argv[0], *argv[:i], f"--compare=[{','.join(dirs)}]", *rest]
-    run_command(run_report, ReportConfig)
+    run_command("adademo_lerobot.report:run_report", ReportConfig)
 
 
 if __name__ == "__main__":

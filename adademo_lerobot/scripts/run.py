@@ -5,7 +5,7 @@ from adademo_lerobot.run import RunConfig, run
 
 
 def main() -> None:
-    run_command(run, RunConfig)
+    run_command(run, RunConfig, policy_types=True)
 
 
 if __name__ == "__main__":

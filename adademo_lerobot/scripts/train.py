@@ -5,7 +5,7 @@ from adademo_lerobot.train import AdaDemoTrainConfig, train
 
 
 def main() -> None:
-    run_command(train, AdaDemoTrainConfig)
+    run_command(train, AdaDemoTrainConfig, policy_types=True)
 
 
 if __name__ == "__main__":

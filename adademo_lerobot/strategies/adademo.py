@@ -1,7 +1,7 @@
 """AdaDemo (principles A + B): evaluate, collect where the policy fails, until E successes or CAP demos."""
 
 from adademo_lerobot.algorithm import collect_on_failed_states
-from adademo_lerobot.ledger import TaskRoundRecord
+from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies.base import RoundContext
 
 

@@ -9,24 +9,22 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
 from adademo_lerobot.collectors.base import ExpertCollector
-from adademo_lerobot.dataset.store import COL_ROUND, COL_SEED, BufferedAppender, DemoDataset
-from adademo_lerobot.evaluation import BatchedEvaluator
-from adademo_lerobot.ledger import RoundJournal, TaskRoundRecord
-from adademo_lerobot.suites.base import TaskSuite, derive_seed
+from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
+from adademo_lerobot.dataset.store import BufferedAppender, DemoDataset
+from adademo_lerobot.ledger import RoundJournal
+from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.seeds import fresh_state_seed
+from adademo_lerobot.suites.base import TaskSuite
 
 # A task whose expert keeps failing stops after this many fresh initial states per requested demo.
 MAX_DRAWS_PER_DEMO = 3
-
-
-def fresh_state_seed(seed: int, round_index: int, task: str, draw: int) -> int:
-    """Seed of the `draw`-th fresh initial state of `task` in a round: the same seed gives the same states."""
-    return derive_seed(seed, "fresh", round_index, task, draw)
 
 
 def planned_demos(target_successes: int, success_rate: float, cap: int) -> int:
@@ -38,9 +36,18 @@ def planned_demos(target_successes: int, success_rate: float, cap: int) -> int:
 
 @dataclass
 class Outcome:
+    """The policy's result from one initial state (the state is the seed's)."""
+
     seed: int
     success: bool
-    steps: int
+
+
+class Evaluator(Protocol):
+    """Runs the policy from the initial states of `seeds` (see `evaluation.BatchedEvaluator`)."""
+
+    batch_size: int
+
+    def run(self, task: str, seeds: list[int]) -> list: ...
 
 
 @dataclass
@@ -51,7 +58,7 @@ class RoundContext:
     round_index: int
     seed: int
     source: str
-    evaluator: BatchedEvaluator | None = None
+    evaluator: Evaluator | None = None
     journal: RoundJournal | None = None
     target_successes: int = 10
     max_demos_per_task: int = 50
@@ -60,13 +67,14 @@ class RoundContext:
     plan_episodes_per_task: int = 20
     commit_every: int = 10
     policy_path: str | None = None
-    on_progress: object = None  # callable(task, record) for progress bars
+    on_progress: Callable[[str, TaskRoundRecord], None] | None = None
     _committed: dict[str, set[int]] = field(default_factory=dict)
     _appender: BufferedAppender | None = None
 
     def __post_init__(self) -> None:
-        self._appender = BufferedAppender(self.dataset, self.suite, self.round_index, self.source,
-                                          self.collector.name, self.commit_every)
+        self._appender = BufferedAppender(
+            self.dataset, self.suite, self.round_index, self.source, self.collector.name, self.commit_every
+        )
         if (self.dataset.root / "meta" / "info.json").exists():
             eps = self.dataset.episodes()
             this_round = eps[eps[COL_ROUND] == self.round_index]
@@ -74,8 +82,15 @@ class RoundContext:
                 self._committed[task] = set(seeds.astype(np.int64).tolist())
 
     def new_record(self, task: str, strategy: str) -> TaskRoundRecord:
-        return TaskRoundRecord(self.round_index, task, strategy, self.target_successes, self.max_demos_per_task,
-                               self.demos_per_task, self.policy_path)
+        return TaskRoundRecord(
+            self.round_index,
+            task,
+            strategy,
+            self.target_successes,
+            self.max_demos_per_task,
+            self.demos_per_task,
+            self.policy_path,
+        )
 
     # -- evaluation -------------------------------------------------------------------------------------
     def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
@@ -85,11 +100,15 @@ class RoundContext:
         if todo:
             if self.evaluator is None:
                 raise RuntimeError("this strategy has no policy to evaluate")
-            for r in self.evaluator.run(task, todo):
-                known[r.seed] = {"type": "eval", "task": task, "seed": r.seed, "success": r.success, "steps": r.steps}
+            fresh = {
+                r.seed: {"type": "eval", "task": task, "seed": r.seed, "success": r.success, "steps": r.steps}
+                for r in self.evaluator.run(task, todo)
+            }
             if self.journal:
-                self.journal.append(*(known[s] for s in todo))
-        return [Outcome(s, bool(known[s]["success"]), int(known[s]["steps"])) for s in seeds]
+                self.journal.append(*(fresh[s] for s in todo))  # also indexes them into `known`
+            else:
+                known = {**known, **fresh}
+        return [Outcome(s, bool(known[s]["success"])) for s in seeds]
 
     def evaluation_cost(self, task: str, record: TaskRoundRecord) -> None:
         evals = self.journal.evaluations(task) if self.journal else {}
@@ -97,7 +116,7 @@ class RoundContext:
         record.eval_env_steps = sum(e["steps"] for e in evals.values())
 
     # -- collection -------------------------------------------------------------------------------------
-    def collect_demo(self, task: str, seed: int, record: TaskRoundRecord, state: np.ndarray | None = None) -> bool:
+    def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
         """Ask the expert for a demonstration from exactly this seed's initial state (at most once a round)."""
         if seed in self._committed.get(task, set()):
             record.demos_added += 1  # committed before an interruption
@@ -106,17 +125,21 @@ class RoundContext:
         if seed in failures:
             self._count_expert_failure(record, failures[seed])
             return False
-        if state is None:
-            state = self.suite.sample_initial_state(task, seed)
-        result = self.collector.collect(task, state, seed)
+        result = self.collector.collect(task, self.suite.sample_initial_state(task, seed), seed)
         record.collection_env_steps += result.env_steps
         if result.demonstration is not None:
             self._appender.add(result.demonstration)
             self._committed.setdefault(task, set()).add(seed)
             record.demos_added += 1
             return True
-        entry = {"type": "expert_failure", "task": task, "seed": int(seed), "attempts": result.attempts,
-                 "steps": result.env_steps, "initial_state": result.initial_state.tolist()}
+        entry = {
+            "type": "expert_failure",
+            "task": task,
+            "seed": int(seed),
+            "attempts": result.attempts,
+            "steps": result.env_steps,
+            "initial_state": result.initial_state.tolist(),
+        }
         if self.journal:
             self.journal.append(entry)
         self._count_expert_failure(record, entry, count_steps=False)
@@ -127,8 +150,9 @@ class RoundContext:
         record.expert_failures += 1
         if count_steps:
             record.collection_env_steps += entry["steps"]
-        record.expert_failed_states.append({"seed": entry["seed"], "initial_state": entry["initial_state"],
-                                            "attempts": entry["attempts"]})
+        record.expert_failed_states.append(
+            {"seed": entry["seed"], "initial_state": entry["initial_state"], "attempts": entry["attempts"]}
+        )
 
     def collect_from_fresh_states(self, task: str, n: int, record: TaskRoundRecord) -> None:
         """n demonstrations from fresh random initial states (no evaluation): Uniform and ablation A."""

@@ -4,17 +4,16 @@ The allocation is the paper's estimate N_k = E / SR_k - E (capped at CAP), with 
 `plan_episodes_per_task` evaluation episodes of this round's policy.
 """
 
-from adademo_lerobot.ledger import TaskRoundRecord
+from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.seeds import plan_state_seeds
 from adademo_lerobot.strategies.base import RoundContext, planned_demos
-from adademo_lerobot.suites.base import derive_seed
-
-
-def plan_state_seeds(seed: int, round_index: int, task: str, n: int) -> list[int]:
-    return [derive_seed(seed, "plan", round_index, task, k) for k in range(n)]
 
 
 def estimate_success(ctx: RoundContext, task: str, record: TaskRoundRecord) -> float:
-    outcomes = ctx.evaluate(task, plan_state_seeds(ctx.seed, ctx.round_index, task, ctx.plan_episodes_per_task))
+    """SR_k on the round's plan states (journaled like every evaluation); fills the record's counts."""
+    outcomes = ctx.evaluate(
+        task, plan_state_seeds(ctx.seed, ctx.round_index, task, ctx.plan_episodes_per_task)
+    )
     record.eval_episodes = len(outcomes)
     record.successes = sum(o.success for o in outcomes)
     record.failures = record.eval_episodes - record.successes

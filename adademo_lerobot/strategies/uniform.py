@@ -1,6 +1,6 @@
 """The paper's Uniform baseline: N new demos per task from fresh random initial states, no evaluation."""
 
-from adademo_lerobot.ledger import TaskRoundRecord
+from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies.base import RoundContext
 
 

@@ -55,23 +55,14 @@ episode ends there. `info["goal_achieved"]` is the env's own per-step flag. Step
 
 from __future__ import annotations
 
-import contextlib
-import io
-import warnings
 from dataclasses import dataclass
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.suites.base import (
-    SuiteConfig,
-    SuiteBase,
-    SuiteTaskEnv,
-    check_task_names,
-    split_task_list,
-)
+from adademo_lerobot.suites.base import SuiteConfig, SuiteTaskEnv
+from adademo_lerobot.suites.gym_robotics import DEFAULT_CAMERA, RENDER_SIZE, GymRoboticsSuite, make_raw_env
 
 # Canonical task names (stored in config.tasks, one-hot order follows the requested order) and short aliases.
 TASKS = ["AdroitHandDoor-v1", "AdroitHandHammer-v1", "AdroitHandPen-v1", "AdroitHandRelocate-v1"]
@@ -100,18 +91,30 @@ ROOT_DIM = 6
 JOINT_DIM = len(UNIFIED_JOINTS)  # 30: agent_pos
 # Per task: how many leading entries of its native observation are joint positions of the unified joints, and
 # where the rest of its native observation sits in the 92-D layout.
-NATIVE_JOINT_OBS = {"AdroitHandDoor-v1": 27, "AdroitHandHammer-v1": 26, "AdroitHandPen-v1": 24,
-                    "AdroitHandRelocate-v1": 30}
-TASK_BLOCKS = {"AdroitHandDoor-v1": (30, 12), "AdroitHandHammer-v1": (42, 20), "AdroitHandPen-v1": (62, 21),
-               "AdroitHandRelocate-v1": (83, 9)}  # (start, size)
+NATIVE_JOINT_OBS = {
+    "AdroitHandDoor-v1": 27,
+    "AdroitHandHammer-v1": 26,
+    "AdroitHandPen-v1": 24,
+    "AdroitHandRelocate-v1": 30,
+}
+TASK_BLOCKS = {
+    "AdroitHandDoor-v1": (30, 12),
+    "AdroitHandHammer-v1": (42, 20),
+    "AdroitHandPen-v1": (62, 21),
+    "AdroitHandRelocate-v1": (83, 9),
+}  # (start, size)
 OBS_DIM = 92
 # DAPG: an episode succeeds when the goal is achieved on more than 25 (pen: 20) of its steps.
-SUCCESS_STEPS = {"AdroitHandDoor-v1": 26, "AdroitHandHammer-v1": 26, "AdroitHandPen-v1": 21,
-                 "AdroitHandRelocate-v1": 26}
+SUCCESS_STEPS = {
+    "AdroitHandDoor-v1": 26,
+    "AdroitHandHammer-v1": 26,
+    "AdroitHandPen-v1": 21,
+    "AdroitHandRelocate-v1": 26,
+}
 FPS = 100  # Adroit: timestep 0.002 s x frame_skip 5 = dt 0.01 s
-RESTORE_SEED = 0  # the env's own random draw during a restore is overwritten; a fixed seed keeps it history-free
-DEFAULT_CAMERA = "default"
-RENDER_SIZE = 256  # frames for videos of state-only envs
+RESTORE_SEED = (
+    0  # the env's own random draw during a restore is overwritten; a fixed seed keeps it history-free
+)
 
 
 @SuiteConfig.register_subclass("adroit")
@@ -123,59 +126,9 @@ class AdroitSuiteConfig(SuiteConfig):
     # `vil_camera` (all tasks), `view_1`..`view_5` (pen only).
     camera: str = DEFAULT_CAMERA
 
-
-def canonical_task_names(tasks: list[str]) -> list[str]:
-    """Short names (`door`) and the group `all` to gymnasium ids (`AdroitHandDoor-v1`); unknown names pass."""
-    out: list[str] = []
-    for task in tasks:
-        if task.lower() == "all":
-            out.extend(TASKS)
-        else:
-            out.append(SHORT_NAMES.get(task.lower(), task))
-    return out
-
-
-def register_envs() -> None:
-    with warnings.catch_warnings(), contextlib.redirect_stderr(io.StringIO()):
-        # On import gymnasium-robotics 1.4.2 prints a notice about Adroit v1 reward versions to stderr.
-        warnings.simplefilter("ignore")
-        import gymnasium_robotics
-
-        gym.register_envs(gymnasium_robotics)
-
-
-def env_max_episode_steps(task: str) -> int:
-    """The registered env's own step limit (`gym.spec(task).max_episode_steps`)."""
-    register_envs()
-    return int(gym.spec(task).max_episode_steps)
-
-
-def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera: str = DEFAULT_CAMERA):
-    """The unwrapped gymnasium-robotics env (no TimeLimit: the task env truncates itself).
-
-    With `render` the env renders `image_size` RGB frames from `camera` (its OpenGL context is made on the first
-    frame only; rendering does not touch the simulation state).
-    """
-    register_envs()
-    kwargs = {}
-    if render:
-        kwargs = dict(render_mode="rgb_array", width=image_size, height=image_size)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        raw = gym.make(task, disable_env_checker=True, **kwargs).unwrapped
-    if render:
-        raw.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
-        if camera != DEFAULT_CAMERA:  # the env's own renderer uses its free camera; swap in a named one
-            if mujoco.mj_name2id(raw.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
-                names = [raw.model.camera(i).name for i in range(raw.model.ncam)]
-                raise AdaDemoError(f"--suite.camera={camera!r} is not a camera of {task}; use default or one of "
-                                   f"{names}")
-            from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
-
-            raw.mujoco_renderer.close()
-            raw.mujoco_renderer = MujocoRenderer(raw.model, raw.data, None, image_size, image_size,
-                                                 camera_name=camera)
-    return raw
+    @classmethod
+    def suite_class(cls) -> type[AdroitSuite]:
+        return AdroitSuite
 
 
 def native_from_unified(raw_env) -> np.ndarray:
@@ -237,12 +190,6 @@ def state_dict_of(raw_env, state: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def sample_state(raw_env, seed: int) -> np.ndarray:
-    """Let the env draw its own initial state from `seed`."""
-    raw_env.reset(seed=int(seed))
-    return capture_state(raw_env)
-
-
 def restore_state(raw_env, state: np.ndarray) -> np.ndarray:
     """Reset to exactly `state`; returns the env's raw observation."""
     state = np.asarray(state, dtype=np.float64)
@@ -259,8 +206,12 @@ def restore_state(raw_env, state: np.ndarray) -> np.ndarray:
         # Pen: reset_model measured the lengths of the randomly drawn target; measure the restored one (equal
         # up to rounding), exactly as the stock env's reset(seed=k) does for its own draw.
         data = raw_env.data
-        raw_env.pen_length = np.linalg.norm(data.site_xpos[raw_env.obj_t_site_id] - data.site_xpos[raw_env.obj_b_site_id])
-        raw_env.tar_length = np.linalg.norm(data.site_xpos[raw_env.tar_t_site_id] - data.site_xpos[raw_env.tar_b_site_id])
+        raw_env.pen_length = np.linalg.norm(
+            data.site_xpos[raw_env.obj_t_site_id] - data.site_xpos[raw_env.obj_b_site_id]
+        )
+        raw_env.tar_length = np.linalg.norm(
+            data.site_xpos[raw_env.tar_t_site_id] - data.site_xpos[raw_env.tar_b_site_id]
+        )
         raw = raw_env._get_obs()
     return raw
 
@@ -275,7 +226,7 @@ class AdroitTaskEnv(SuiteTaskEnv):
     """
 
     def __init__(self, suite: AdroitSuite, task: str, terminate_on_success: bool = True):
-        super().__init__(suite, task, terminate_on_success, OBS_DIM + len(suite.tasks))
+        super().__init__(suite, task, terminate_on_success)
         cfg = suite.config
         # Always able to render: state-only envs render frames on demand for videos (e.g. `lerobot-eval`).
         self._raw = make_raw_env(task, True, cfg.image_size if self._pixels else RENDER_SIZE, cfg.camera)
@@ -291,9 +242,6 @@ class AdroitTaskEnv(SuiteTaskEnv):
     def goal_achieved_steps(self) -> int:
         """Steps of the current episode on which the env reported its goal achieved."""
         return self._goal_steps
-
-    def _sample_state(self, seed: int) -> np.ndarray:
-        return sample_state(self._raw, seed)
 
     def _restore(self, state: np.ndarray) -> np.ndarray:
         self._goal_steps, self._goal_achieved = 0, False
@@ -322,33 +270,14 @@ class AdroitTaskEnv(SuiteTaskEnv):
         return obs
 
 
-class AdroitSuite(SuiteBase):
+class AdroitSuite(GymRoboticsSuite):
     """AdroitHandDoor/Hammer/Pen/Relocate v1 (short names `door`, `hammer`, `pen`, `relocate`, or `all`)."""
 
     name = "adroit"
     fps = FPS
     action_dim = ACTION_DIM
     state_dim = JOINT_DIM
-
+    layout_dim = OBS_DIM
     env_class = AdroitTaskEnv
-    config_class = AdroitSuiteConfig
-
-    make_sampler_env = staticmethod(make_raw_env)
-    sample_state = staticmethod(sample_state)
-
-    def __init__(self, config: SuiteConfig):
-        config = self._checked_config(config)
-        tasks = canonical_task_names(split_task_list(config.tasks))
-        check_task_names(tasks, TASKS + list(SHORT_NAMES), "adroit")
-        self._set_tasks(config, tasks)
-        if config.camera != DEFAULT_CAMERA:  # fail now, not when the first env is made mid-collection
-            for task in tasks:
-                make_raw_env(task, True, 16, config.camera).close()
-
-    @property
-    def env_state_dim(self) -> int:
-        return OBS_DIM + len(self._tasks)
-
-    def task_description(self, task: str) -> str:
-        return DESCRIPTIONS.get(task, task)
-
+    TASKS, SHORT_NAMES, DESCRIPTIONS = TASKS, SHORT_NAMES, DESCRIPTIONS
+    capture_state = staticmethod(capture_state)

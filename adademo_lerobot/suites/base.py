@@ -12,23 +12,27 @@ import abc
 import dataclasses
 import difflib
 import json
-import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol
 
 import draccus
 import gymnasium as gym
 import numpy as np
 
-from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.gl import check_rendering_works
 
 OBS_TYPES = ("state", "pixels_state")
 
 
 @dataclass
 class SuiteConfig(draccus.ChoiceRegistry, abc.ABC):
-    """Which benchmark family, which tasks, which observations. Stored with every dataset."""
+    """Which benchmark family, which tasks, which observations. Stored with every dataset.
+
+    Each family registers its subclass (`--suite.type=metaworld|fetch|adroit`) and builds its own suite, as
+    LeRobot's `ChoiceRegistry` configs do; `adademo_lerobot.suites` imports the built-in families.
+    """
 
     # Comma-separated task names (or a group name the suite knows, e.g. `mt10`).
     tasks: str = ""
@@ -46,32 +50,34 @@ class SuiteConfig(draccus.ChoiceRegistry, abc.ABC):
     def default_choice_name(cls) -> str | None:
         return "metaworld"
 
+    @classmethod
+    @abc.abstractmethod
+    def suite_class(cls) -> type:
+        """The family's suite class (its `layout_dim` is the environment_state size without the one-hot)."""
+
+    def build(self) -> TaskSuite:
+        """The suite this config describes (checks the config and the task names)."""
+        return self.suite_class()(self)
+
     def to_dict(self) -> dict[str, Any]:
         return {"type": self.type, **dataclasses.asdict(self)}
-
-    @staticmethod
-    def from_dict(data: dict[str, Any]) -> SuiteConfig:
-        import adademo_lerobot.suites  # noqa: F401  (registers the built-in suites)
-
-        data = dict(data)
-        kind = data.pop("type")
-        try:
-            cls = SuiteConfig.get_choice_class(kind)
-        except KeyError:
-            raise AdaDemoError(f"unknown suite type {kind!r}; known: {sorted(SuiteConfig.get_known_choices())}")
-        names = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in names})
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
 
 
-@runtime_checkable
 class TaskSuite(Protocol):
     """One benchmark family: tasks, envs, exact initial states, success and task conditioning."""
 
     config: SuiteConfig
     name: str
+    fps: int
+    action_dim: int
+    state_dim: int
+
+    @property
+    def env_state_dim(self) -> int:
+        """Size of `observation.environment_state` (the full state observation + the task one-hot)."""
 
     @property
     def tasks(self) -> list[str]:
@@ -140,14 +146,15 @@ class SuiteTaskEnv(gym.Env):
     to float32 and clipped before stepping: exactly what is stored, so stored actions replay exactly.
     `info["is_success"]` reports success; with `terminate_on_success` (evaluation) the episode ends there.
 
-    Subclasses set `self._raw` and implement `_sample_state`, `_restore`, `_raw_step` and `_observation`.
+    Subclasses set `self._raw` (the simulator) and implement `_restore`, `_raw_step` and `_observation`.
     """
 
     metadata = {"render_modes": ["rgb_array"]}
 
-    def __init__(self, suite: TaskSuite, task: str, terminate_on_success: bool, env_state_dim: int):
+    def __init__(self, suite: TaskSuite, task: str, terminate_on_success: bool):
         super().__init__()
         cfg = suite.config
+        self._suite = suite
         self.task = task
         self.task_description = suite.task_description(task)
         self.terminate_on_success = terminate_on_success
@@ -166,7 +173,7 @@ class SuiteTaskEnv(gym.Env):
         self._steps = 0
         obs_spaces = {
             "agent_pos": gym.spaces.Box(-np.inf, np.inf, (suite.state_dim,), np.float64),
-            "environment_state": gym.spaces.Box(-np.inf, np.inf, (env_state_dim,), np.float64),
+            "environment_state": gym.spaces.Box(-np.inf, np.inf, (suite.env_state_dim,), np.float64),
         }
         if self._pixels:
             shape = (cfg.image_size, cfg.image_size, 3)
@@ -176,7 +183,7 @@ class SuiteTaskEnv(gym.Env):
 
     # -- simulator-specific hooks -------------------------------------------------------------------------
     def _sample_state(self, seed: int) -> np.ndarray:
-        raise NotImplementedError
+        return self._suite.sample_state(self._raw, seed)
 
     def _restore(self, state: np.ndarray):
         """Reset the simulator to exactly `state`; returns the raw observation."""
@@ -194,7 +201,7 @@ class SuiteTaskEnv(gym.Env):
 
     def render(self):
         """An RGB frame (image_size with `pixels_state`, else the simulator's default), also for state-only envs."""
-        choose_gl_backend()
+        check_rendering_works()
         return np.ascontiguousarray(self._raw.render())
 
     def _camera_image(self) -> dict:
@@ -251,32 +258,32 @@ def cached_for_task(cache: dict, key, make: Callable[[], Any], keep: int, task_o
     return item
 
 
-def derive_seed(*keys: int | str) -> int:
-    """A stable 63-bit seed from a tuple of ints and strings (strings hashed with CRC32, stable across runs)."""
-    ints = [k if isinstance(k, int) else zlib.crc32(k.encode()) for k in keys]
-    high, low = np.random.SeedSequence(ints).generate_state(2, dtype=np.uint32)
-    return (int(high) << 31) | (int(low) >> 1)
-
-
 class SuiteBase:
     """What every suite does the same way: its task list (one-hot order), task checks, envs and seeded states.
 
-    Subclasses set `env_class`, `config_class`, `make_sampler_env(task)` (a bare simulator used only to draw
-    initial states) and `sample_state(raw_env, seed)`, and call `_set_tasks` from `__init__`.
+    Subclasses set `env_class`, implement `make_sampler_env(task)` (a bare simulator used only to draw initial
+    states) and `sample_state(raw_env, seed)`, and call `_set_tasks` from `__init__`.
     """
 
     env_class: type[SuiteTaskEnv]
-    config_class: type[SuiteConfig]
-    make_sampler_env: Callable[[str], Any]  # set with staticmethod(...)
-    sample_state: Callable[[Any, int], np.ndarray]
+    layout_dim: int  # environment_state without the task one-hot
+
+    @property
+    def env_state_dim(self) -> int:
+        return self.layout_dim + len(self._tasks)
+
+    def make_sampler_env(self, task: str) -> Any:
+        raise NotImplementedError
+
+    def sample_state(self, raw_env: Any, seed: int) -> np.ndarray:
+        """Let the simulator draw its own initial state from `seed` and capture it."""
+        raise NotImplementedError
 
     def _checked_config(self, config: SuiteConfig) -> SuiteConfig:
-        """The suite's own config class (a generic one is converted), checked, with a GL backend for pixels."""
-        if not isinstance(config, self.config_class):
-            config = self.config_class(**{k: v for k, v in config.to_dict().items() if k != "type"})
+        """The config, checked; camera images need rendering that works on this machine."""
         check_common_config(config)
         if config.obs_type == "pixels_state":
-            choose_gl_backend()
+            check_rendering_works()
         return config
 
     def _set_tasks(self, config: SuiteConfig, tasks: list[str]) -> None:
@@ -296,8 +303,8 @@ class SuiteBase:
 
     def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
         self._check_task(task)
-        env = cached_for_task(self._samplers, task, lambda: type(self).make_sampler_env(task), keep=4)
-        return type(self).sample_state(env, seed)
+        env = cached_for_task(self._samplers, task, lambda: self.make_sampler_env(task), keep=4)
+        return self.sample_state(env, seed)
 
     def task_onehot(self, task: str) -> np.ndarray:
         return onehot(self._tasks, task)
@@ -305,20 +312,3 @@ class SuiteBase:
     def _check_task(self, task: str) -> None:
         if task not in self._tasks:
             raise AdaDemoError(f"task {task!r} is not in this suite's task list {self._tasks}")
-
-
-def make_suite(config: SuiteConfig) -> TaskSuite:
-    """Build the suite a config names (imports the family lazily: each pulls a different simulator)."""
-    if config.type == "metaworld":
-        from adademo_lerobot.suites.metaworld import MetaWorldSuite
-
-        return MetaWorldSuite(config)
-    elif config.type == "fetch":
-        from adademo_lerobot.suites.fetch import FetchSuite
-
-        return FetchSuite(config)
-    elif config.type == "adroit":
-        from adademo_lerobot.suites.adroit import AdroitSuite
-
-        return AdroitSuite(config)
-    raise AdaDemoError(f"no suite implementation for type {config.type!r}")

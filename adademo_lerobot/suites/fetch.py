@@ -22,23 +22,14 @@ one-hot.
 
 from __future__ import annotations
 
-import contextlib
-import io
-import warnings
 from dataclasses import dataclass
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.suites.base import (
-    SuiteConfig,
-    SuiteBase,
-    SuiteTaskEnv,
-    check_task_names,
-    split_task_list,
-)
+from adademo_lerobot.suites.base import SuiteConfig, SuiteTaskEnv
+from adademo_lerobot.suites.gym_robotics import DEFAULT_CAMERA, RENDER_SIZE, GymRoboticsSuite, make_raw_env
 
 # Canonical task names (stored in config.tasks, one-hot order follows the requested order) and short aliases.
 TASKS = ["FetchReach-v4", "FetchPush-v4", "FetchPickAndPlace-v4", "FetchSlide-v4"]
@@ -63,8 +54,6 @@ PROPRIO_DIM = len(PROPRIO_INDICES)
 REACH_OBS_DIM = 10  # Reach's own observation is exactly the proprioception, in PROPRIO_INDICES order
 ACTION_DIM = 4
 FPS = 25  # Fetch: timestep 0.002 s x 20 substeps = dt 0.04 s
-DEFAULT_CAMERA = "default"
-RENDER_SIZE = 256  # frames for videos of state-only envs
 
 
 @SuiteConfig.register_subclass("fetch")
@@ -76,44 +65,9 @@ class FetchSuiteConfig(SuiteConfig):
     # `external_camera_0`, `head_camera_rgb`.
     camera: str = DEFAULT_CAMERA
 
-
-def canonical_task_names(tasks: list[str]) -> list[str]:
-    """Short names (`push`) and the group `all` to gymnasium ids (`FetchPush-v4`); unknown names pass through."""
-    out: list[str] = []
-    for task in tasks:
-        if task.lower() == "all":
-            out.extend(TASKS)
-        else:
-            out.append(SHORT_NAMES.get(task.lower(), task))
-    return out
-
-
-def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera: str = DEFAULT_CAMERA):
-    """The unwrapped gymnasium-robotics env (no TimeLimit: the task env truncates itself).
-
-    With `render` the env renders `image_size` RGB frames from `camera` (its OpenGL context is made on the first
-    frame only; rendering does not touch the simulation state).
-    """
-    with warnings.catch_warnings(), contextlib.redirect_stderr(io.StringIO()):
-        # On import gymnasium-robotics 1.4.2 prints a notice about Adroit reward versions (not Fetch) to stderr.
-        warnings.simplefilter("ignore")
-        import gymnasium_robotics
-
-        gym.register_envs(gymnasium_robotics)
-        kwargs = dict(render_mode="rgb_array", width=image_size, height=image_size) if render else {}
-        raw = gym.make(task, disable_env_checker=True, **kwargs).unwrapped
-    if render:
-        raw.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
-        if camera != DEFAULT_CAMERA:  # the env's own renderer uses its free camera; swap in a named one
-            if mujoco.mj_name2id(raw.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
-                names = [raw.model.camera(i).name for i in range(raw.model.ncam)]
-                raise AdaDemoError(f"--suite.camera={camera!r} is not a Fetch camera; use default or one of {names}")
-            from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
-
-            raw.mujoco_renderer.close()
-            raw.mujoco_renderer = MujocoRenderer(raw.model, raw.data, None, image_size, image_size,
-                                                 camera_name=camera)
-    return raw
+    @classmethod
+    def suite_class(cls) -> type[FetchSuite]:
+        return FetchSuite
 
 
 def state_dim_of(raw_env) -> int:
@@ -127,12 +81,6 @@ def capture_state(raw_env) -> np.ndarray:
         parts.append(raw_env._utils.get_joint_qpos(raw_env.model, raw_env.data, "object0:joint"))
     parts.append(raw_env.goal)
     return np.array(np.concatenate(parts), dtype=np.float64, copy=True)
-
-
-def sample_state(raw_env, seed: int) -> np.ndarray:
-    """Let the env draw its own initial state from `seed` (object away from the gripper, goal in range)."""
-    raw_env.reset(seed=int(seed))
-    return capture_state(raw_env)
 
 
 def restore_state(raw_env, state: np.ndarray) -> dict:
@@ -171,13 +119,10 @@ class FetchTaskEnv(SuiteTaskEnv):
     """
 
     def __init__(self, suite: FetchSuite, task: str, terminate_on_success: bool = True):
-        super().__init__(suite, task, terminate_on_success, OBS_DIM + GOAL_DIM + len(suite.tasks))
+        super().__init__(suite, task, terminate_on_success)
         cfg = suite.config
         # Always able to render: state-only envs render frames on demand for videos (e.g. `lerobot-eval`).
         self._raw = make_raw_env(task, True, cfg.image_size if self._pixels else RENDER_SIZE, cfg.camera)
-
-    def _sample_state(self, seed: int) -> np.ndarray:
-        return sample_state(self._raw, seed)
 
     def _restore(self, state: np.ndarray) -> dict:
         return restore_state(self._raw, state)
@@ -190,39 +135,23 @@ class FetchTaskEnv(SuiteTaskEnv):
         full = full_observation(raw["observation"])
         obs = {
             "agent_pos": full[PROPRIO_INDICES],
-            "environment_state": np.concatenate([full, np.asarray(raw["desired_goal"], np.float64), self._onehot]),
+            "environment_state": np.concatenate(
+                [full, np.asarray(raw["desired_goal"], np.float64), self._onehot]
+            ),
         }
         if self._pixels:
             obs["pixels"] = self._camera_image()
         return obs
 
 
-class FetchSuite(SuiteBase):
+class FetchSuite(GymRoboticsSuite):
     """FetchReach/Push/PickAndPlace/Slide v4 (short names `reach`, `push`, `pick_and_place`, `slide`, or `all`)."""
 
     name = "fetch"
     fps = FPS
     action_dim = ACTION_DIM
     state_dim = PROPRIO_DIM
-
+    layout_dim = OBS_DIM + GOAL_DIM
     env_class = FetchTaskEnv
-    config_class = FetchSuiteConfig
-
-    make_sampler_env = staticmethod(make_raw_env)
-    sample_state = staticmethod(sample_state)
-
-    def __init__(self, config: SuiteConfig):
-        config = self._checked_config(config)
-        tasks = canonical_task_names(split_task_list(config.tasks))
-        check_task_names(tasks, TASKS + list(SHORT_NAMES), "fetch")
-        self._set_tasks(config, tasks)
-        if config.camera != DEFAULT_CAMERA:  # fail now, not when the first env is made mid-collection
-            make_raw_env(tasks[0], True, 16, config.camera).close()
-
-    @property
-    def env_state_dim(self) -> int:
-        return OBS_DIM + GOAL_DIM + len(self._tasks)
-
-    def task_description(self, task: str) -> str:
-        return DESCRIPTIONS.get(task, task)
-
+    TASKS, SHORT_NAMES, DESCRIPTIONS = TASKS, SHORT_NAMES, DESCRIPTIONS
+    capture_state = staticmethod(capture_state)

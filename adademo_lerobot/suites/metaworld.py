@@ -15,12 +15,12 @@ from functools import cached_property
 import mujoco
 import numpy as np
 
-from adademo_lerobot import choose_gl_backend
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.gl import check_rendering_works
 from adademo_lerobot.patching import temporarily_set
 from adademo_lerobot.suites.base import (
-    SuiteConfig,
     SuiteBase,
+    SuiteConfig,
     SuiteTaskEnv,
     check_task_names,
     split_task_list,
@@ -36,13 +36,22 @@ PROPRIO_DIM = 4  # hand xyz + gripper opening: the robot's own state
 ACTION_DIM = 4
 FPS = 80
 RENDER_SIZE = 256  # frames for videos of state-only envs
-PRISTINE_MODEL_FIELDS = ("body_pos", "body_quat", "site_pos", "site_quat")  # MetaWorld: timestep 0.0025 s x frame_skip 5
+PRISTINE_MODEL_FIELDS = (
+    "body_pos",
+    "body_quat",
+    "site_pos",
+    "site_quat",
+)  # MetaWorld: timestep 0.0025 s x frame_skip 5
 
 
 @SuiteConfig.register_subclass("metaworld")
 @dataclass
 class MetaWorldSuiteConfig(SuiteConfig):
     camera: str = "corner2"
+
+    @classmethod
+    def suite_class(cls) -> type[MetaWorldSuite]:
+        return MetaWorldSuite
 
 
 def all_task_names() -> list[str]:
@@ -67,7 +76,11 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     """A bare MetaWorld env with the goal observable and no internal step limit (we truncate ourselves)."""
     from metaworld.env_dict import ALL_V3_ENVIRONMENTS
 
-    kwargs = dict(render_mode="rgb_array", camera_name=camera, width=image_size, height=image_size) if render else {}
+    kwargs = (
+        {"render_mode": "rgb_array", "camera_name": camera, "width": image_size, "height": image_size}
+        if render
+        else {}
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         env = ALL_V3_ENVIRONMENTS[task](**kwargs)
@@ -143,12 +156,9 @@ class MetaWorldTaskEnv(SuiteTaskEnv):
     """One MetaWorld task: `agent_pos` = hand xyz + gripper, `environment_state` = 39-D state + task one-hot."""
 
     def __init__(self, suite: MetaWorldSuite, task: str, terminate_on_success: bool = True):
-        super().__init__(suite, task, terminate_on_success, RAW_OBS_DIM + len(suite.tasks))
+        super().__init__(suite, task, terminate_on_success)
         self._raw = make_raw_env(task, self._pixels, suite.config.image_size, self._camera)
         self._renderer = None
-
-    def _sample_state(self, seed: int) -> np.ndarray:
-        return sample_layout(self._raw, seed)
 
     def _restore(self, state: np.ndarray) -> np.ndarray:
         return restore_layout(self._raw, state)
@@ -175,7 +185,7 @@ class MetaWorldTaskEnv(SuiteTaskEnv):
             image = self._raw.render()
         else:
             if self._renderer is None:
-                choose_gl_backend()
+                check_rendering_works()
                 self._renderer = mujoco.Renderer(self._raw.model, RENDER_SIZE, RENDER_SIZE)
             self._renderer.update_scene(self._raw.data, camera=self._camera)
             image = self._renderer.render()
@@ -194,22 +204,20 @@ class MetaWorldSuite(SuiteBase):
     fps = FPS
     action_dim = ACTION_DIM
     state_dim = PROPRIO_DIM
-
+    layout_dim = RAW_OBS_DIM
     env_class = MetaWorldTaskEnv
-    config_class = MetaWorldSuiteConfig
 
-    make_sampler_env = staticmethod(make_raw_env)
-    sample_state = staticmethod(sample_layout)
-
-    def __init__(self, config: SuiteConfig):
+    def __init__(self, config: MetaWorldSuiteConfig):
         config = self._checked_config(config)
         tasks = expand_task_groups(split_task_list(config.tasks))
         check_task_names(tasks, all_task_names(), "metaworld")
         self._set_tasks(config, tasks)
 
-    @property
-    def env_state_dim(self) -> int:
-        return RAW_OBS_DIM + len(self._tasks)
+    def make_sampler_env(self, task: str):
+        return make_raw_env(task)
+
+    def sample_state(self, raw_env, seed: int) -> np.ndarray:
+        return sample_layout(raw_env, seed)
 
     def task_description(self, task: str) -> str:
         return self._descriptions.get(task, task)
@@ -219,4 +227,3 @@ class MetaWorldSuite(SuiteBase):
         from lerobot.envs.metaworld import TASK_DESCRIPTIONS
 
         return {f"{k}-v3" if not k.endswith("-v3") else k: v for k, v in TASK_DESCRIPTIONS.items()}
-

@@ -3,7 +3,7 @@
 Two kinds of `path`:
 
 - a LeRobot checkpoint folder (`.../pretrained_model` with `config.json` and `model.safetensors`), loaded with
-  its pre/post-processors by `evaluation.load_policy`; it acts exactly as in `adademo-eval` (batch of one,
+  its pre/post-processors and checked against the suite's features (`adademo_lerobot.policy`); it acts exactly as in `adademo-eval` (batch of one,
   the task description as `task`, `policy.reset()` at the start of every attempt, action chunks as the policy
   queues them);
 - a TorchScript file (`torch.jit.save`): a module mapping the `environment_state` vector, a float32 tensor of
@@ -16,14 +16,17 @@ with seeded action noise (`--collector.max_attempts`) and otherwise skipped and 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from adademo_lerobot.collectors.base import CollectorConfig, PolicyExpertCollector
+from adademo_lerobot.collectors.base import CollectorConfig, ExpertCollector, SimulatedExpertCollector
+from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.policy import load_checked_policy
+from adademo_lerobot.suites.base import TaskSuite
 
 
 @CollectorConfig.register_subclass("policy")
@@ -34,28 +37,28 @@ class PolicyCollectorConfig(CollectorConfig):
     path: str | None = None
     device: str = "cpu"
 
+    def build(self, suite: TaskSuite) -> ExpertCollector:
+        return CheckpointExpert(suite, self)
 
-class CheckpointExpert(PolicyExpertCollector):
+
+class CheckpointExpert(SimulatedExpertCollector):
     name = "policy"
 
-    def __init__(self, suite, config: CollectorConfig):
+    def __init__(self, suite: TaskSuite, config: PolicyCollectorConfig):
         super().__init__(suite, config)
-        path = getattr(config, "path", None)
+        path = config.path
         if not path:
-            raise AdaDemoError("--collector.path is required for --collector.type=policy (a LeRobot checkpoint "
-                               "folder or a TorchScript file)")
+            raise AdaDemoError(
+                "--collector.path is required for --collector.type=policy (a LeRobot checkpoint "
+                "folder or a TorchScript file)"
+            )
         path = Path(path)
         if not path.exists():
             raise AdaDemoError(f"--collector.path={path} does not exist")
         self.path = path
-        self.device = getattr(config, "device", "cpu")
+        self.device = config.device
         if path.is_dir():
-            from adademo_lerobot.evaluation import load_policy
-            from adademo_lerobot.dataset.features import dataset_features
-            from adademo_lerobot.train import check_policy_matches_dataset
-
-            self._loaded = load_policy(path, self.device)
-            check_policy_matches_dataset(self._loaded.config, dataset_features(suite))
+            self._loaded = load_checked_policy(path, dataset_features(suite), self.device)
             self._module = None
         else:
             import torch
@@ -63,8 +66,10 @@ class CheckpointExpert(PolicyExpertCollector):
             try:
                 self._module = torch.jit.load(str(path), map_location=self.device).eval()
             except Exception as exc:  # noqa: BLE001  (torch raises RuntimeError/ValueError for non-TorchScript)
-                raise AdaDemoError(f"--collector.path={path} is neither a LeRobot checkpoint folder nor a "
-                                   f"TorchScript file: {exc}") from exc
+                raise AdaDemoError(
+                    f"--collector.path={path} is neither a LeRobot checkpoint folder nor a "
+                    f"TorchScript file: {exc}"
+                ) from exc
             self._loaded = None
 
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]:
@@ -74,13 +79,17 @@ class CheckpointExpert(PolicyExpertCollector):
             module, device = self._module, self.device
 
             def act_torchscript(observation: dict) -> np.ndarray:
-                state = torch.as_tensor(np.asarray(observation["environment_state"], np.float32)[None], device=device)
+                state = torch.as_tensor(
+                    np.asarray(observation["environment_state"], np.float32)[None], device=device
+                )
                 with torch.inference_mode():
                     action = module(state)
                 action = np.asarray(action.detach().cpu().numpy(), dtype=np.float64).reshape(-1)
                 if action.shape != (self.suite.action_dim,):
-                    raise AdaDemoError(f"TorchScript expert {self.path} returned {action.size} values; "
-                                       f"the {self.suite.name} suite needs {self.suite.action_dim}")
+                    raise AdaDemoError(
+                        f"TorchScript expert {self.path} returned {action.size} values; "
+                        f"the {self.suite.name} suite needs {self.suite.action_dim}"
+                    )
                 return action
 
             return act_torchscript
@@ -92,8 +101,10 @@ class CheckpointExpert(PolicyExpertCollector):
         description = self.suite.task_description(task)
 
         def act_lerobot(observation: dict) -> np.ndarray:
-            batch = {"agent_pos": np.asarray(observation["agent_pos"])[None],
-                     "environment_state": np.asarray(observation["environment_state"])[None]}
+            batch = {
+                "agent_pos": np.asarray(observation["agent_pos"])[None],
+                "environment_state": np.asarray(observation["environment_state"])[None],
+            }
             if "pixels" in observation:
                 batch["pixels"] = {k: np.asarray(v)[None] for k, v in observation["pixels"].items()}
             batch = preprocess_observation(batch)

@@ -1,0 +1,30 @@
+"""`--collector.type=scripted` (the default): each suite's built-in scripted expert."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from adademo_lerobot.collectors.adroit_scripted import AdroitScriptedExpert
+from adademo_lerobot.collectors.base import CollectorConfig, ExpertCollector
+from adademo_lerobot.collectors.fetch_scripted import FetchScriptedExpert
+from adademo_lerobot.collectors.metaworld_scripted import MetaWorldScriptedExpert
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.suites.base import TaskSuite
+
+SCRIPTED_EXPERTS = {
+    "metaworld": MetaWorldScriptedExpert,
+    "fetch": FetchScriptedExpert,
+    "adroit": AdroitScriptedExpert,
+}
+
+
+@CollectorConfig.register_subclass("scripted")
+@dataclass
+class ScriptedCollectorConfig(CollectorConfig):
+    """The suite's built-in scripted experts (MetaWorld: `metaworld.policies`; Fetch: `fetch_scripted`; Adroit:
+    `adroit_scripted`)."""
+
+    def build(self, suite: TaskSuite) -> ExpertCollector:
+        if suite.name not in SCRIPTED_EXPERTS:
+            raise AdaDemoError(f"no scripted expert for suite {suite.name!r}; use --collector.type=policy")
+        return SCRIPTED_EXPERTS[suite.name](suite, self)

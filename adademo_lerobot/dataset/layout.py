@@ -1,0 +1,20 @@
+"""Where adademo keeps its extras inside a standard LeRobot v3.0 dataset (names only; no imports)."""
+
+ADADEMO_DIR = "meta/adademo"
+SUITE_FILE = f"{ADADEMO_DIR}/suite.json"
+LEDGER_FILE = f"{ADADEMO_DIR}/rounds.jsonl"
+TXN_FILE = f"{ADADEMO_DIR}/pending_write.json"
+TXN_BACKUP_DIR = f"{ADADEMO_DIR}/pending_write_backup"
+
+# Per-episode columns in meta/episodes.
+COL_INITIAL_STATE = "adademo/initial_state"
+COL_SEED = "adademo/seed"
+COL_ROUND = "adademo/round"
+COL_SOURCE = "adademo/source"
+COL_COLLECTOR = "adademo/collector"
+COL_SUITE = "adademo/suite"
+EPISODE_COLUMNS = (COL_INITIAL_STATE, COL_SEED, COL_ROUND, COL_SOURCE, COL_COLLECTOR, COL_SUITE)
+
+# Episodes that arrived without adademo columns (recorded elsewhere, or edited by LeRobot's tools, which drop
+# extra columns) count as round 0 with this source and no initial state.
+IMPORTED_SOURCE = "imported"

@@ -1,0 +1,60 @@
+"""Durable file writes: a file is either its old content or its new content, never half of either."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+
+def check_writable_location(path: Path, what: str) -> None:
+    """`path` may not exist yet, but its nearest existing ancestor must be a writable folder."""
+    from adademo_lerobot.errors import AdaDemoError
+
+    parent = Path(path)
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise AdaDemoError(f"cannot write {what} {path}: {parent} is not a writable folder")
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write to a sibling temporary file, fsync it, then rename it over `path`."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def atomic_write_json(path: Path, data, indent: int | None = 2) -> None:
+    atomic_write_text(path, json.dumps(data, indent=indent, sort_keys=indent is not None) + "\n")
+
+
+def append_json_lines(path: Path, entries: list[dict]) -> None:
+    """Append one JSON object per line and fsync: once this returns, a kill cannot lose them."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        f.write("".join(json.dumps(e) + "\n" for e in entries))
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def read_json_lines(path: Path) -> list[dict]:
+    """Every complete JSON line; a last line torn by a kill (and anything after it) is ignored."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        if not line.strip():
+            continue
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            break
+    return out

@@ -1,0 +1,218 @@
+"""Fast unit tests of Algorithm 1's inner loop, the task-only plan, the journal and the ledger.
+
+The loop, the plan, the journal and the ledger are the real code; the round context they talk to is a small
+in-memory one whose policy outcomes and expert results are scripted, so every stopping branch can be checked
+with exact counts in milliseconds. The integration tests (test_expand.py) run the same code on real simulation.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import pytest
+
+from adademo_lerobot.algorithm import collect_on_failed_states
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.ledger import RoundJournal, append_ledger, read_ledger
+from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.seeds import expansion_state_seed, plan_state_seeds
+from adademo_lerobot.strategies.base import Outcome, planned_demos
+from adademo_lerobot.strategies.task_only import TaskOnlyStrategy
+
+
+@dataclass
+class ScriptedEvaluator:
+    batch_size: int
+
+
+@dataclass
+class ScriptedRound:
+    """The part of `RoundContext` the strategies use, with scripted policy outcomes ("F" fail / "S" success per
+    sampled state, in order) and scripted expert results (False where the expert fails that state)."""
+
+    outcomes: str
+    target_successes: int
+    max_demos_per_task: int
+    max_eval_episodes_per_task: int
+    batch_size: int = 4
+    expert_fails_on: set[int] = field(default_factory=set)  # positions k (in sampling order) the expert fails
+    seed: int = 0
+    round_index: int = 1
+    plan_episodes_per_task: int = 10
+    evaluated: list[int] = field(default_factory=list)  # seeds, in the order they were evaluated
+    batches: list[int] = field(default_factory=list)
+    collected: list[int] = field(default_factory=list)  # seeds the expert was asked about
+    fresh_requests: list[int] = field(default_factory=list)
+
+    def __post_init__(self):
+        self.evaluator = ScriptedEvaluator(self.batch_size)
+        self._position: dict[int, int] = {}
+
+    def new_record(self, task: str, strategy: str) -> TaskRoundRecord:
+        return TaskRoundRecord(
+            self.round_index, task, strategy, self.target_successes, self.max_demos_per_task, None, None
+        )
+
+    def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
+        self.batches.append(len(seeds))
+        out = []
+        for s in seeds:
+            k = self._position.setdefault(s, len(self._position))
+            self.evaluated.append(s)
+            out.append(Outcome(s, self.outcomes[k] == "S"))
+        return out
+
+    def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
+        self.collected.append(seed)
+        if self._position[seed] in self.expert_fails_on:
+            record.expert_failures += 1
+            return False
+        record.demos_added += 1
+        return True
+
+    def collect_from_fresh_states(self, task: str, n: int, record: TaskRoundRecord) -> None:
+        self.fresh_requests.append(n)
+        record.demos_added += n
+
+    def progress(self, task, record) -> None:
+        pass
+
+
+def run_loop(ctx: ScriptedRound) -> TaskRoundRecord:
+    return collect_on_failed_states(ctx, "reach-v3", ctx.new_record("reach-v3", "adademo"))
+
+
+def seeds(n: int, task: str = "reach-v3") -> list[int]:
+    return [expansion_state_seed(0, 1, task, k) for k in range(n)]
+
+
+def test_stops_at_e_successes_collecting_on_every_failure_before():
+    ctx = ScriptedRound(
+        "FFSFSS" + "F" * 20, target_successes=3, max_demos_per_task=10, max_eval_episodes_per_task=50
+    )
+    r = run_loop(ctx)
+    assert (r.eval_episodes, r.successes, r.failures, r.demos_added) == (6, 3, 3, 3)
+    assert ctx.evaluated == seeds(6)  # the loop's own samples, in order, none beyond the stopping point
+    assert ctx.collected == [seeds(6)[k] for k in (0, 1, 3)]  # demos exactly from the failed states
+    assert not r.cap_hit and not r.eval_bound_hit
+
+
+def test_stops_at_cap_demos():
+    ctx = ScriptedRound("F" * 30, target_successes=5, max_demos_per_task=4, max_eval_episodes_per_task=50)
+    r = run_loop(ctx)
+    assert (r.eval_episodes, r.successes, r.demos_added) == (4, 0, 4)
+    assert r.cap_hit and not r.eval_bound_hit
+
+
+def test_stops_at_the_evaluation_bound_when_the_expert_keeps_failing():
+    ctx = ScriptedRound(
+        "F" * 30,
+        target_successes=5,
+        max_demos_per_task=4,
+        max_eval_episodes_per_task=7,
+        expert_fails_on=set(range(30)),
+    )
+    r = run_loop(ctx)
+    assert (r.eval_episodes, r.successes, r.failures, r.demos_added, r.expert_failures) == (7, 0, 7, 0, 7)
+    assert r.eval_bound_hit and not r.cap_hit
+
+
+def test_expert_failures_do_not_count_towards_cap():
+    ctx = ScriptedRound(
+        "FFFFFFS" + "S" * 10,
+        target_successes=2,
+        max_demos_per_task=3,
+        max_eval_episodes_per_task=50,
+        expert_fails_on={1, 2},
+    )
+    r = run_loop(ctx)
+    # Failures at 0..5: demos at 0, 3, 4 (CAP=3 reached at k=4), expert failed at 1, 2.
+    assert (r.eval_episodes, r.demos_added, r.expert_failures, r.successes) == (5, 3, 2, 0)
+    assert r.cap_hit
+
+
+def test_batches_never_evaluate_past_a_possible_stopping_point():
+    ctx = ScriptedRound(
+        "SSSSSSSSSS", target_successes=6, max_demos_per_task=10, max_eval_episodes_per_task=50, batch_size=4
+    )
+    run_loop(ctx)
+    assert ctx.batches == [4, 2]  # after 4 successes only 2 more can be needed
+    ctx = ScriptedRound(
+        "F" * 10, target_successes=9, max_demos_per_task=3, max_eval_episodes_per_task=50, batch_size=8
+    )
+    run_loop(ctx)
+    assert ctx.batches == [3]  # 3 failures fill CAP=3
+
+
+def test_task_only_plans_the_papers_estimate_and_collects_from_fresh_states(tmp_path):
+    ctx = ScriptedRound(
+        "SFFSFFFFFF",
+        target_successes=4,
+        max_demos_per_task=50,
+        max_eval_episodes_per_task=50,
+        plan_episodes_per_task=10,
+    )
+    r = TaskOnlyStrategy().expand_task(ctx, "reach-v3")
+    assert ctx.evaluated == plan_state_seeds(0, 1, "reach-v3", 10)
+    assert (r.eval_episodes, r.successes, r.failures) == (10, 2, 8)
+    assert r.planned_demos == 16 == planned_demos(4, 0.2, 50)  # 4 / 0.2 - 4
+    assert ctx.fresh_requests == [16] and not r.cap_hit
+    ctx = ScriptedRound("F" * 10, target_successes=4, max_demos_per_task=7, max_eval_episodes_per_task=50)
+    r = TaskOnlyStrategy().expand_task(ctx, "reach-v3")
+    assert r.planned_demos == 7 and r.cap_hit  # SR 0 gets CAP
+
+
+def test_planned_demos_formula():
+    assert planned_demos(10, 0.5, 100) == 10
+    assert planned_demos(10, 1.0, 100) == 0
+    assert planned_demos(10, 0.0, 7) == 7
+    assert planned_demos(5, 0.3, 100) == 12  # ceil(5 / 0.3 - 5) = ceil(11.67)
+    assert planned_demos(5, 0.05, 20) == 20
+
+
+def test_journal_keeps_its_index_in_memory_and_on_disk(tmp_path):
+    journal = RoundJournal(tmp_path, 3)
+    journal.start({"strategy": "adademo", "seed": 0})
+    journal.append(
+        {"type": "eval", "task": "a", "seed": 11, "success": False, "steps": 5},
+        {"type": "eval", "task": "b", "seed": 12, "success": True, "steps": 7},
+    )
+    journal.append(
+        {"type": "expert_failure", "task": "a", "seed": 11, "attempts": 3, "steps": 9, "initial_state": [0.0]}
+    )
+    journal.append(
+        {"type": "time", "task": "a", "seconds": 1.5}, {"type": "time", "task": "a", "seconds": 0.5}
+    )
+    assert set(journal.evaluations("a")) == {11} and journal.evaluations("b")[12]["success"] is True
+    assert set(journal.expert_failures("a")) == {11} and journal.seconds("a") == 2.0
+    # A kill tears the last line: a fresh reader sees everything before it, the same as memory.
+    with open(journal.path, "a") as f:
+        f.write('{"type": "eval", "task": "a", "se')
+    reread = RoundJournal(tmp_path, 3)
+    assert reread.evaluations("a") == journal.evaluations("a") and reread.seconds("a") == 2.0
+    with pytest.raises(AdaDemoError, match="other settings"):
+        reread.start({"strategy": "uniform", "seed": 0})
+    assert RoundJournal.in_progress(tmp_path) == [3]
+    reread.finish()
+    assert RoundJournal.in_progress(tmp_path) == [] and reread.archive_path.exists()
+
+
+def test_ledger_appends_whole_rounds_once(tmp_path):
+    records = [
+        TaskRoundRecord(
+            1, t, "adademo", 5, 10, None, "ckpt", eval_episodes=4, successes=1, failures=3, demos_added=3
+        )
+        for t in ("a", "b")
+    ]
+    append_ledger(tmp_path, records)
+    rows = read_ledger(tmp_path)
+    assert [(r["round"], r["task"], r["demos_added"]) for r in rows] == [(1, "a", 3), (1, "b", 3)]
+    with pytest.raises(AdaDemoError, match="already in the ledger"):
+        append_ledger(tmp_path, records[:1])
+    assert len(read_ledger(tmp_path)) == 2
+    append_ledger(tmp_path, [TaskRoundRecord(2, "a", "uniform", None, None, 4, None, demos_added=4)])
+    assert [
+        json.loads(line)["round"]
+        for line in (tmp_path / "meta/adademo/rounds.jsonl").read_text().splitlines()
+    ] == [1, 1, 2]

@@ -1,0 +1,200 @@
+"""What LeRobot users rely on across the move to LeRobot 0.6: datasets and checkpoints made before it still work,
+and datasets edited with LeRobot's own tools keep working with every adademo command."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import BIN, TINY_ACT, run_cli
+
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.ledger import read_ledger
+
+FIXTURES = Path(__file__).parent / "fixtures" / "lerobot044"
+
+
+def stock_dataset(repo_id: str, root: Path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset(repo_id, root=root, video_backend="pyav")
+
+
+def expand_uniform(root: Path, repo_id: str = "local/x", n: int = 1) -> None:
+    run_cli(
+        "adademo-expand",
+        f"--dataset.repo_id={repo_id}",
+        f"--dataset.root={root}",
+        "--strategy=uniform",
+        f"--demos_per_task={n}",
+    )
+
+
+def test_a_dataset_made_with_lerobot_044_opens_trains_and_expands(tmp_path):
+    root = tmp_path / "old"
+    shutil.copytree(FIXTURES / "dataset", root)
+    before = read_episode_metadata(root)
+    assert len(before) == 6 and sorted(set(before["adademo/round"])) == [0, 1]
+    assert stock_dataset("local/made_with_lerobot044", root).num_episodes == 6
+    expand_uniform(root, n=2)  # round 2: new episodes appended to the old files' dataset
+    after = read_episode_metadata(root)
+    assert len(after) == 10 and (after[after["adademo/round"] == 2]["adademo/source"] == "uniform").all()
+    assert [r["round"] for r in read_ledger(root)] == [1, 1, 2, 2]
+    assert stock_dataset("local/made_with_lerobot044", root).num_episodes == 10
+    out = tmp_path / "train"
+    run_cli(
+        "adademo-train",
+        "--dataset.repo_id=local/made_with_lerobot044",
+        f"--dataset.root={root}",
+        *TINY_ACT,
+        "--steps=2",
+        f"--output_dir={out}",
+    )
+    assert (out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").exists()
+
+
+def test_a_checkpoint_made_with_lerobot_044_evaluates_and_fine_tunes(tmp_path):
+    ckpt, root = FIXTURES / "act_checkpoint", tmp_path / "old"
+    shutil.copytree(FIXTURES / "dataset", root)
+    run_cli(
+        "adademo-eval",
+        f"--policy.path={ckpt}",
+        f"--dataset.root={root}",
+        "--episodes_per_task=2",
+        f"--output_dir={tmp_path / 'eval'}",
+    )
+    summary = json.loads((tmp_path / "eval" / "eval_summary.json").read_text())
+    assert [row["episodes"] for row in summary["per_task"]] == [2, 2, 4]
+    run_cli(
+        "adademo-train",
+        "--dataset.repo_id=local/made_with_lerobot044",
+        f"--dataset.root={root}",
+        f"--policy.path={ckpt}",
+        "--steps=2",
+        "--batch_size=8",
+        f"--output_dir={tmp_path / 'ft'}",
+    )
+
+
+def test_expand_accepts_a_stock_lerobot_train_checkpoint(reach_push_dataset, stock_act_checkpoint, tmp_path):
+    root = tmp_path / "ds"
+    shutil.copytree(reach_push_dataset, root)
+    run_cli(
+        "adademo-expand",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={root}",
+        f"--policy.path={stock_act_checkpoint}",
+        "--strategy=adademo",
+        "--target_successes=1",
+        "--max_demos_per_task=1",
+    )
+    assert {r["policy_path"] for r in read_ledger(root)} == {str(stock_act_checkpoint)}
+
+
+def edit_dataset(*args: str) -> None:
+    proc = subprocess.run(
+        [str(BIN / "lerobot-edit-dataset"), *args], capture_output=True, text=True, timeout=600
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+def check_expands_and_opens(root: Path, repo_id: str, tasks: list[str]) -> None:
+    """Every adademo command reads the edited dataset; a round appends to it; stock LeRobot still opens it."""
+    before = read_episode_metadata(root)
+    expand_uniform(root, repo_id)
+    after = read_episode_metadata(root)
+    new = after[after["adademo/round"] == after["adademo/round"].max()]
+    assert len(after) == len(before) + len(tasks) and sorted(new["task"]) == sorted(tasks)
+    assert (new["adademo/source"] == "uniform").all() and all(
+        len(s) > 0 for s in new["adademo/initial_state"]
+    )
+    assert stock_dataset(repo_id, root).num_episodes == len(after)
+    suite = json.loads((root / "meta" / "adademo" / "suite.json").read_text())
+    assert suite["type"] == "metaworld" and suite["tasks"] == ",".join(tasks)
+
+
+@pytest.fixture
+def two_datasets(reach_push_dataset, tmp_path):
+    """The session dataset and a second one of the same suite, with one adademo round each."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    shutil.copytree(reach_push_dataset, a)
+    run_cli(
+        "adademo-collect",
+        "--suite.tasks=reach-v3,push-v3",
+        "--episodes_per_task=1",
+        "--dataset.repo_id=local/b",
+        f"--dataset.root={b}",
+        "--seed=7",
+    )
+    return a, b
+
+
+def test_lerobot_merge_keeps_the_rounds_and_the_result_expands(two_datasets, tmp_path):
+    a, b = two_datasets
+    merged = tmp_path / "merged"
+    edit_dataset(
+        "--new_repo_id=local/merged",
+        f"--new_root={merged}",
+        "--operation.type=merge",
+        "--operation.repo_ids=['local/demo', 'local/b']",
+        f"--operation.roots=['{a}', '{b}']",
+    )
+    eps = read_episode_metadata(merged)
+    assert (
+        len(eps) == 6 + 2 and (eps["adademo/source"] == "initial").all()
+    )  # LeRobot's merge keeps our columns
+    assert not (merged / "meta" / "adademo" / "suite.json").exists()  # ... but copies no extra file
+    check_expands_and_opens(merged, "local/merged", ["reach-v3", "push-v3"])
+    assert (read_episode_metadata(merged)["adademo/round"].max()) == 1
+
+
+def test_lerobot_delete_episodes_drops_our_columns_and_the_result_still_expands(reach_push_dataset, tmp_path):
+    source, out = tmp_path / "src", tmp_path / "deleted"
+    shutil.copytree(reach_push_dataset, source)
+    edit_dataset(
+        "--repo_id=local/demo",
+        f"--root={source}",
+        "--new_repo_id=local/deleted",
+        f"--new_root={out}",
+        "--operation.type=delete_episodes",
+        "--operation.episode_indices=[1]",
+    )
+    eps = read_episode_metadata(out)
+    assert len(eps) == 5 and (eps["adademo/source"] == "imported").all()  # rebuilt: round 0, no initial state
+    check_expands_and_opens(out, "local/deleted", ["reach-v3", "push-v3"])
+    eps = read_episode_metadata(out)
+    assert list(eps["adademo/round"]) == [0] * 5 + [1, 1]  # the old episodes were given the columns too
+
+
+def test_lerobot_split_results_each_expand(reach_push_dataset, tmp_path):
+    source, base = tmp_path / "src", tmp_path / "split"
+    shutil.copytree(reach_push_dataset, source)
+    # Episodes 0-2 are reach-v3 and 3-5 push-v3: each part keeps both tasks (the one-hot order comes from frames).
+    edit_dataset(
+        "--repo_id=local/demo",
+        f"--root={source}",
+        f"--new_root={base}",
+        "--operation.type=split",
+        "--operation.splits={'train': [0, 1, 3, 4], 'val': [2, 5]}",
+    )
+    for part, n in (("train", 4), ("val", 2)):
+        assert len(read_episode_metadata(base / part)) == n
+        check_expands_and_opens(base / part, f"local/demo_{part}", ["reach-v3", "push-v3"])
+
+
+def test_lerobot_aggregate_keeps_the_rounds_and_the_result_expands(two_datasets, tmp_path):
+    from lerobot.datasets.aggregate import aggregate_datasets
+
+    a, b = two_datasets
+    out = tmp_path / "aggregated"
+    aggregate_datasets(["local/demo", "local/b"], "local/aggregated", roots=[a, b], aggr_root=out)
+    eps = read_episode_metadata(out)
+    assert len(eps) == 8 and list(eps["adademo/seed"][:6]) == list(read_episode_metadata(a)["adademo/seed"])
+    np.testing.assert_array_equal(
+        eps["adademo/initial_state"].iloc[6], read_episode_metadata(b)["adademo/initial_state"].iloc[0]
+    )
+    check_expands_and_opens(out, "local/aggregated", ["reach-v3", "push-v3"])

@@ -1,0 +1,182 @@
+"""The package's shape: imports run one way with no cycles, and commands answer before importing torch.
+
+Imports run commands -> loop -> strategies -> collectors/evaluation -> suites/dataset -> leaf modules; an import
+against that direction (or any cycle, including one held together by an import inside a function) fails here.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "adademo_lerobot"
+
+# Lower layers never import higher ones. A module's layer is that of the longest matching prefix.
+LAYERS = [
+    # leaves: shared types and helpers
+    ("adademo_lerobot.errors", 0),
+    ("adademo_lerobot.versions", 0),
+    ("adademo_lerobot.gl", 0),
+    ("adademo_lerobot.files", 0),
+    ("adademo_lerobot.seeds", 0),
+    ("adademo_lerobot.records", 0),
+    ("adademo_lerobot.tables", 0),
+    ("adademo_lerobot.patching", 0),
+    ("adademo_lerobot.dataset.layout", 0),
+    ("adademo_lerobot", 0),  # the package __init__ (version check, GL choice)
+    # simulators and data
+    ("adademo_lerobot.suites", 1),
+    ("adademo_lerobot.recording", 1),
+    ("adademo_lerobot.dataset", 1),
+    ("adademo_lerobot.policy", 1),
+    ("adademo_lerobot.samplers", 1),
+    ("adademo_lerobot.ledger", 1),
+    # experts and evaluation
+    ("adademo_lerobot.collectors", 2),
+    ("adademo_lerobot.evaluation", 2),
+    ("adademo_lerobot.executors", 2),
+    # strategies (Algorithm 1)
+    ("adademo_lerobot.algorithm", 3),
+    ("adademo_lerobot.strategies", 3),
+    # one command each, the plugins and the command configs
+    ("adademo_lerobot.configs", 4),
+    ("adademo_lerobot.collect", 4),
+    ("adademo_lerobot.expand", 4),
+    ("adademo_lerobot.train", 4),
+    ("adademo_lerobot.report", 4),
+    ("adademo_lerobot.hub", 4),
+    ("adademo_lerobot.record", 4),
+    ("adademo_lerobot.lerobot_plugins", 4),
+    # the loop
+    ("adademo_lerobot.run", 5),
+    # entry points
+    ("adademo_lerobot.cli", 6),
+    ("adademo_lerobot.scripts", 6),
+]
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def layer(module: str) -> int:
+    matches = [
+        (len(prefix), n) for prefix, n in LAYERS if module == prefix or module.startswith(prefix + ".")
+    ]
+    assert matches, f"{module} has no layer in tests/test_structure.py"
+    return max(matches)[1]
+
+
+def runtime_imports(tree: ast.AST) -> list[str]:
+    """Every adademo_lerobot import, at module level or inside functions, except under `if TYPE_CHECKING:`."""
+    found = []
+
+    def visit(node):
+        if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
+            return
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("adademo_lerobot"):
+            found.append(node.module)
+            found.extend(f"{node.module}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.Import):
+            found.extend(a.name for a in node.names if a.name.startswith("adademo_lerobot"))
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(tree)
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    modules = {module_name(p): p for p in PACKAGE.rglob("*.py")}
+    graph = {m: set() for m in modules}
+    for m, path in modules.items():
+        for target in runtime_imports(ast.parse(path.read_text())):
+            parts = target.split(".")
+            # importing a.b.c runs the package a.b (its __init__) first
+            for i in range(1, len(parts) + 1):
+                t = ".".join(parts[:i])
+                if t in modules and t != m and not m.startswith(t + "."):
+                    graph[m].add(t)
+    return graph
+
+
+def test_imports_have_no_cycles():
+    graph, state, stack, cycles = import_graph(), {}, [], []
+
+    def dfs(u):
+        state[u] = "open"
+        stack.append(u)
+        for v in sorted(graph[u]):
+            if state.get(v) == "open":
+                cycles.append(" -> ".join([*stack[stack.index(v) :], v]))
+            elif v not in state:
+                dfs(v)
+        stack.pop()
+        state[u] = "done"
+
+    for m in sorted(graph):
+        if m not in state:
+            dfs(m)
+    assert not cycles, "import cycles:\n" + "\n".join(cycles)
+
+
+def test_imports_run_one_way():
+    upward = [
+        f"{m} (layer {layer(m)}) imports {t} (layer {layer(t)})"
+        for m, targets in import_graph().items()
+        for t in targets
+        if layer(t) > layer(m)
+    ]
+    assert not upward, "imports against the layering:\n" + "\n".join(sorted(upward))
+
+
+PROBE = """
+import sys
+sys.argv = {argv!r}
+from adademo_lerobot.scripts.{script} import main
+try:
+    main()
+    code = 0
+except SystemExit as exit:
+    code = exit.code
+print("RESULT", code, "torch" in sys.modules, "lerobot" in sys.modules)
+"""
+
+
+@pytest.mark.parametrize(
+    ("script", "args", "expected_code"),
+    [
+        ("collect", ["--help"], 0),
+        ("collect", ["--suite.tasks=reach-v3,pusj-v3", "--dataset.root=/nonexistent/ds"], 2),
+        ("collect", ["--episodes_per_task=x"], 2),
+        ("eval", ["--help"], 0),
+        (
+            "eval",
+            ["--dataset.root=/nonexistent", "--episodes_per_task=0", "--policy.path=p", "--output_dir=o"],
+            2,
+        ),
+        ("expand", ["--help"], 0),
+        ("expand", ["--dataset.root=/nonexistent/ds", "--strategy=greedy"], 2),
+        ("expand", ["--dataset.root=/nonexistent/ds"], 2),
+        ("push", ["--help"], 0),
+        ("push", ["--dataset.root=/nonexistent/ds", "--repo_id=bad id"], 2),
+        ("report", ["--run_dir=/nonexistent/run"], 2),
+    ],
+)
+def test_commands_answer_bad_input_and_help_without_importing_torch(script, args, expected_code):
+    """`--help`, flag errors and dataset checks answer before torch and LeRobot are imported (the seconds-long
+    part of a command's start): the import cost is measured as what is imported, not as a wall time."""
+    code = PROBE.format(argv=[f"adademo-{script}", *args], script=script)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = [line for line in proc.stdout.splitlines() if line.startswith("RESULT")]
+    assert result, proc.stderr[-2000:]
+    _, exit_code, torch_loaded, lerobot_loaded = result[-1].split()
+    assert int(exit_code) == expected_code, proc.stderr[-2000:]
+    assert (torch_loaded, lerobot_loaded) == ("False", "False")
+    if expected_code == 2:
+        assert proc.stderr.strip().splitlines()[-1].startswith("error: ")
