@@ -87,8 +87,9 @@ install_venv() {
     die "delete $VENV and rerun, or refresh the lock deliberately (bash setup.sh lock)"
   fi
   "$VENV/bin/python" -m pip check >/dev/null || { "$VENV/bin/python" -m pip check; die "the locked set is inconsistent"; }
-  (cd /tmp && "$VENV/bin/python" -c "import adademo_lerobot, lerobot, metaworld, gymnasium_robotics, mujoco") \
-    || die "the installed packages do not import; see the traceback above"
+  local out
+  out=$(cd /tmp && "$VENV/bin/python" -c "import adademo_lerobot, lerobot, metaworld, gymnasium_robotics, mujoco" 2>&1) \
+    || { echo "$out" >&2; die "the installed packages do not import; see the traceback above"; }
 }
 
 refresh_lock() {

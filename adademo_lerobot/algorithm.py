@@ -15,6 +15,8 @@
 `collect_on_failed_states` is the inner loop (lines 4-16) for one task. The outer loop (train, rounds, retrain)
 is `adademo_lerobot.run`, which calls this through the `adademo` strategy. Evaluations run in batches no
 larger than the fewest episodes that could end the loop, so batching never evaluates past the stopping point.
+With a Ray executor the expert starts on all of a batch's failures at once and several tasks' loops run side by
+side; every decision below is the same, so is the result.
 """
 
 from __future__ import annotations
@@ -32,11 +34,13 @@ def collect_on_failed_states(ctx: RoundContext, task: str, record: TaskRoundReco
     E, CAP = ctx.target_successes, ctx.max_demos_per_task  # noqa: N806  (the paper's names)
     c, k = 0, 0  # successes so far, initial states sampled so far
     while c < E and record.demos_added < CAP and k < ctx.max_eval_episodes_per_task:
-        batch_size = min(
-            ctx.evaluator.batch_size, E - c, CAP - record.demos_added, ctx.max_eval_episodes_per_task - k
-        )
+        batch_size = min(ctx.batch_size, E - c, CAP - record.demos_added, ctx.max_eval_episodes_per_task - k)
         seeds = [expansion_state_seed(ctx.seed, ctx.round_index, task, k + j) for j in range(batch_size)]
-        for outcome in ctx.evaluate(task, seeds):  # line 9: evaluate pi on s
+        outcomes = ctx.evaluate(task, seeds)  # line 9: evaluate pi on s
+        ctx.ask_expert(
+            task, [o.seed for o in outcomes if not o.success]
+        )  # experts may start on all failures at once
+        for outcome in outcomes:
             k += 1
             record.eval_episodes += 1
             if not outcome.success:  # line 10: pi failed on s

@@ -7,11 +7,12 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from adademo_lerobot.collectors import ExpertCollector, make_collector
+from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.metadata import check_same_suite, has_dataset, load_suite_config
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.executors import Executor, LocalExecutor, check_executor_args, make_executor
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies.base import RoundContext
 from adademo_lerobot.suites import TaskSuite, make_suite
@@ -20,49 +21,65 @@ from adademo_lerobot.tables import table
 
 def collect_fresh(
     suite: TaskSuite,
-    collector: ExpertCollector,
     dataset: DemoDataset,
     demos_per_task: dict[str, int],
     seed: int,
     round_index: int,
     source: str,
+    collector_config: CollectorConfig | None = None,
+    executor: Executor | None = None,
     commit_every: int = 10,
     desc: str = "collecting",
 ) -> dict[str, TaskRoundRecord]:
-    """Collect `demos_per_task[task]` demonstrations of each task from fresh seeded initial states.
+    """Collect `demos_per_task[task]` demonstrations of each task from fresh seeded initial states, with the
+    given expert (default: the suite's scripted one) on `executor` (default: this process).
 
     Resumable: states already in the dataset for this round (same seed) count as done, and the draw
     sequence is deterministic, so an interrupted run completes to the same dataset.
     """
-    records: dict[str, TaskRoundRecord] = {}
-    with tqdm(total=sum(demos_per_task.values()), desc=desc, unit="demo", dynamic_ncols=True) as bar:
-        done_before = 0
+    collector_config = collector_config or ScriptedCollectorConfig()
+    own_executor = executor is None
+    if own_executor:
+        executor = LocalExecutor(suite, collector_config, batch_size=1, device="cpu", torch_threads=1)
+    done: dict[str, int] = {}
+    try:
+        with tqdm(total=sum(demos_per_task.values()), desc=desc, unit="demo", dynamic_ncols=True) as bar:
 
-        def progress(task: str, record: TaskRoundRecord) -> None:
-            bar.n = done_before + record.demos_added
-            bar.set_postfix(task=task, expert_failures=record.expert_failures, refresh=False)
-            bar.refresh()
+            def progress(task: str, record: TaskRoundRecord) -> None:
+                done[task] = record.demos_added
+                bar.n = sum(done.values())
+                bar.set_postfix(task=task, expert_failures=record.expert_failures, refresh=False)
+                bar.refresh()
 
-        ctx = RoundContext(
-            suite,
-            dataset,
-            collector,
-            round_index,
-            seed,
-            source,
-            commit_every=commit_every,
-            on_progress=progress,
-        )
-        for task, wanted in demos_per_task.items():
-            started = time.perf_counter()
-            record = ctx.new_record(task, source)
-            record.demos_per_task, record.target_successes, record.max_demos_per_task = wanted, None, None
-            ctx.collect_from_fresh_states(task, wanted, record)
-            ctx.flush(task, started)
-            record.wall_seconds = time.perf_counter() - started
-            records[task] = record
-            done_before += record.demos_added
-    return records
+            ctx = RoundContext(
+                suite,
+                dataset,
+                executor,
+                collector_config.expert_name(suite),
+                round_index,
+                seed,
+                source,
+                commit_every=commit_every,
+                on_progress=progress,
+            )
+
+            def collect_task(task: str) -> TaskRoundRecord:
+                started = time.perf_counter()
+                record = ctx.new_record(task, source)
+                record.demos_per_task, record.target_successes, record.max_demos_per_task = (
+                    demos_per_task.get(task, 0),
+                    None,
+                    None,
+                )
+                ctx.collect_from_fresh_states(task, record.demos_per_task, record)
+                record.wall_seconds = time.perf_counter() - started
+                return record
+
+            records = ctx.run_tasks(collect_task)
+    finally:
+        if own_executor:
+            executor.close()
+    return {r.task: r for r in records if r.task in demos_per_task}
 
 
 def format_collection_table(records: dict[str, TaskRoundRecord]) -> str:
@@ -87,8 +104,9 @@ def run_collect(cfg) -> dict[str, TaskRoundRecord]:
         raise AdaDemoError("--dataset.root is required (the folder of the LeRobot dataset to create)")
     if cfg.episodes_per_task < 1:
         raise AdaDemoError(f"--episodes_per_task must be >= 1, got {cfg.episodes_per_task}")
+    check_executor_args(cfg.executor, cfg.ray)
     suite = make_suite(cfg.suite)
-    collector = make_collector(cfg.collector, suite)
+    cfg.collector.validate(suite)
     root = Path(cfg.dataset.root)
     if has_dataset(root) and cfg.resume:
         check_same_suite(load_suite_config(root), suite.config)
@@ -98,17 +116,22 @@ def run_collect(cfg) -> dict[str, TaskRoundRecord]:
         DemoDataset.check_new_root(root)
         dataset = DemoDataset(cfg.dataset.repo_id, root, suite.config)
     start = time.perf_counter()
-    summaries = collect_fresh(
-        suite,
-        collector,
-        dataset,
-        dict.fromkeys(suite.tasks, cfg.episodes_per_task),
-        cfg.seed,
-        round_index=0,
-        source="initial",
-        commit_every=cfg.commit_every,
-        desc="initial demos",
-    )
+    executor = make_executor(cfg.executor, cfg.ray, suite, cfg.collector, batch_size=1, torch_threads=1)
+    try:
+        summaries = collect_fresh(
+            suite,
+            dataset,
+            dict.fromkeys(suite.tasks, cfg.episodes_per_task),
+            cfg.seed,
+            round_index=0,
+            source="initial",
+            collector_config=cfg.collector,
+            executor=executor,
+            commit_every=cfg.commit_every,
+            desc="initial demos",
+        )
+    finally:
+        executor.close()
     print(format_collection_table(summaries))
     print(f"dataset: {root} ({time.perf_counter() - start:.1f} s)")
     return summaries

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
+from adademo_lerobot.executors import RayArgs
 from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
 
 
@@ -34,6 +35,9 @@ class CollectConfig:
     resume: bool = False
     # Episodes buffered in memory between dataset commits (a kill loses at most these).
     commit_every: int = 10
+    # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
+    executor: str = "local"
+    ray: RayArgs = field(default_factory=RayArgs)
 
 
 @dataclass
@@ -60,6 +64,9 @@ class EvalCommandConfig:
     eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
     device: str = "cpu"
     torch_threads: int = 2
+    # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
+    executor: str = "local"
+    ray: RayArgs = field(default_factory=RayArgs)
 
 
 @dataclass
@@ -86,6 +93,9 @@ class ExpandConfig:
     device: str = "cpu"
     torch_threads: int = 2
     commit_every: int = 10
+    # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
+    executor: str = "local"
+    ray: RayArgs = field(default_factory=RayArgs)
 
 
 @dataclass

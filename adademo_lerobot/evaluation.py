@@ -7,8 +7,8 @@ exactly the state we asked for.
 
 from __future__ import annotations
 
+import contextlib
 import json
-import time
 from dataclasses import asdict
 from pathlib import Path
 
@@ -19,7 +19,7 @@ from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.patching import temporarily_set
 from adademo_lerobot.policy import LoadedPolicy
 from adademo_lerobot.records import EpisodeRecord
-from adademo_lerobot.seeds import evaluation_seeds
+from adademo_lerobot.seeds import derive_seed
 from adademo_lerobot.suites.base import TaskSuite, cached_for_task
 from adademo_lerobot.tables import table
 
@@ -35,97 +35,191 @@ def _without_rollout_progress_bar():
 
 
 class BatchedEvaluator:
-    """Runs a policy from given initial states, `batch_size` episodes at a time per task."""
+    """Runs a policy from given initial states, `batch_size` episodes at a time per task.
 
-    def __init__(self, suite: TaskSuite, loaded: LoadedPolicy, batch_size: int = 10, progress=None):
+    Two ways to run a batch, with the same results:
+    - chunked (ACT without temporal ensembling, the default policy): the policy is asked for an action chunk
+      only when it would ask itself (`predict_action_chunk` every `n_action_steps` steps, as ACT's own
+      `select_action` does), observations are preprocessed only then, and the chunk is postprocessed at once
+      (elementwise: the same numbers). That skips LeRobot's per-step pipeline work, which otherwise costs as
+      much as a quarter of an evaluation on a CPU;
+    - LeRobot's own `rollout()` for every other policy (Diffusion keeps observation history per step).
+    `tests/test_eval.py` checks both give the same episodes.
+    """
+
+    def __init__(
+        self, suite: TaskSuite, loaded: LoadedPolicy, batch_size: int = 10, chunked: bool | None = None
+    ):
         if batch_size < 1:
             raise AdaDemoError(f"--eval.batch_size must be >= 1, got {batch_size}")
-        from lerobot.processor import PolicyProcessorPipeline
-
         self.suite, self.loaded, self.batch_size = suite, loaded, batch_size
-        self.progress = progress  # an optional tqdm bar advanced by one per finished episode
-        self._identity = PolicyProcessorPipeline(steps=[])
-        self._envs: dict[tuple[str, int], object] = {}  # (task, batch size) -> gymnasium SyncVectorEnv
+        cfg = loaded.config
+        can_chunk = cfg.type == "act" and getattr(cfg, "temporal_ensemble_coeff", None) is None
+        self.chunked = can_chunk if chunked is None else chunked and can_chunk
+        self._pools: dict[str, EnvPool] = {}  # per task: the envs batches are made of, reused across batches
         self.env_steps = 0
 
-    def _vector_env(self, task: str, n: int):
-        import gymnasium as gym
-
-        def make():
-            env = gym.vector.SyncVectorEnv([lambda: self.suite.make_env(task, terminate_on_success=True)] * n)
-            env.set_attr("hold_after_episode", True)  # no simulation after an episode ends
-            return env
-
-        # One task's batches at a time (10 envs of ~35 MB each); rebuilding a batch takes < 1 s.
-        return cached_for_task(self._envs, (task, n), make, keep=1, task_of=lambda key: key[0])
+    def _envs(self, task: str, n: int) -> list:
+        pool = cached_for_task(self._pools, task, lambda: EnvPool(self.suite, task), keep=1)
+        return pool.take(n)
 
     def run(self, task: str, seeds: list[int]) -> list[EpisodeRecord]:
-        """One episode per seed, from that seed's initial state, in `batch_size` batches; records in seed order."""
-        import torch
-        from lerobot.scripts.lerobot_eval import rollout
+        """One episode per seed, from that seed's initial state, in `batch_size` batches; records in seed order.
 
-        states = [self.suite.sample_initial_state(task, s) for s in seeds]
+        Every random draw of an episode comes from its seed: a policy that samples (Diffusion) gets each
+        episode's noise from that episode's seed, and torch's global generator is seeded from the batch's seeds,
+        so an outcome depends neither on the worker nor on what ran before. Inference runs on one torch thread:
+        the float sums of a matrix product depend on the thread count, and episodes amplify such differences, so
+        outcomes would otherwise depend on the machine's and the worker's thread settings (batches of <= 10
+        observations gain little from more threads)."""
+        import torch
+
         records: list[EpisodeRecord] = []
         for begin in range(0, len(seeds), self.batch_size):
-            batch_seeds, batch_states = (
-                seeds[begin : begin + self.batch_size],
-                states[begin : begin + self.batch_size],
-            )
-            env = self._vector_env(task, len(batch_seeds))
-            env.set_attr("pending_initial_state", [np.asarray(s, dtype=np.float64) for s in batch_states])
-            with torch.inference_mode(), _without_rollout_progress_bar():
-                out = rollout(
-                    env,
-                    self.loaded.policy,
-                    self._identity,
-                    self._identity,
-                    self.loaded.preprocessor,
-                    self.loaded.postprocessor,
-                )
-            done = out["done"].numpy()
-            success = out["success"].numpy()
-            reward = out["reward"].numpy()
-            for i, (s, st) in enumerate(zip(batch_seeds, batch_states, strict=True)):
-                steps = int(np.argmax(done[i]) + 1) if done[i].any() else done.shape[1]
+            batch_seeds = seeds[begin : begin + self.batch_size]
+            states = [self.suite.sample_initial_state(task, s) for s in batch_seeds]
+            envs = self._envs(task, len(batch_seeds))
+            torch.manual_seed(derive_seed("rollout", *batch_seeds) % 2**63)
+            with torch.inference_mode(), one_torch_thread():
+                run_batch = self._run_chunked if self.chunked else self._run_lerobot_rollout
+                results = run_batch(task, envs, states, batch_seeds)
+            for s, st, (success, steps, reward) in zip(batch_seeds, states, results, strict=True):
                 self.env_steps += steps
                 records.append(
-                    EpisodeRecord(
-                        task,
-                        int(s),
-                        np.asarray(st, np.float64).tolist(),
-                        bool(success[i, :steps].any()),
-                        steps,
-                        float(reward[i, :steps].sum()),
-                    )
+                    EpisodeRecord(task, int(s), np.asarray(st, np.float64).tolist(), success, steps, reward)
                 )
-            if self.progress is not None:
-                self.progress.update(len(batch_seeds))
-                self.progress.set_postfix(task=task, success=f"{np.mean([r.success for r in records]):.0%}")
         return records
 
+    def _run_chunked(
+        self, task: str, envs: list, states: list, seeds: list[int]
+    ) -> list[tuple[bool, int, float]]:
+        from lerobot.envs.utils import preprocess_observation
+
+        loaded, n_action_steps = self.loaded, self.loaded.config.n_action_steps
+        description = self.suite.task_description(task)
+        observations = [
+            env.reset(options={"initial_state": s})[0] for env, s in zip(envs, states, strict=True)
+        ]
+        loaded.policy.reset()
+        done, success = [False] * len(envs), [False] * len(envs)
+        steps, rewards = [0] * len(envs), [[] for _ in envs]
+        max_steps, t = self.suite.config.max_episode_steps, 0
+        while not all(done) and t < max_steps:
+            if t % n_action_steps == 0:
+                batch = preprocess_observation(
+                    {
+                        key: np.stack([o[key] for o in observations])
+                        for key in ("agent_pos", "environment_state")
+                    }
+                    | _stacked_pixels(observations)
+                )
+                batch["task"] = [description] * len(envs)
+                chunk = loaded.policy.predict_action_chunk(loaded.preprocessor(batch))[:, :n_action_steps]
+                chunk = loaded.postprocessor(chunk).to("cpu").numpy()
+            for i, env in enumerate(envs):
+                if done[i]:
+                    continue  # a finished episode's row keeps its final observation, as in LeRobot's rollout
+                observations[i], r, terminated, truncated, info = env.step(chunk[i, t % n_action_steps])
+                steps[i] += 1
+                rewards[i].append(r)
+                if terminated or truncated:
+                    done[i], success[i] = True, bool(info["is_success"])
+            t += 1
+        returns = [float(np.asarray(r, dtype=np.float64).sum()) for r in rewards]  # summed as rollout() sums
+        return list(zip(success, steps, returns, strict=True))
+
+    def _run_lerobot_rollout(
+        self, task: str, envs: list, states: list, seeds: list[int]
+    ) -> list[tuple[bool, int, float]]:
+        import gymnasium as gym
+        from lerobot.processor import PolicyProcessorPipeline
+        from lerobot.scripts.lerobot_eval import rollout
+
+        vector = gym.vector.SyncVectorEnv([lambda env=env: env for env in envs])
+        vector.set_attr("hold_after_episode", True)  # no simulation after an episode ends
+        vector.set_attr("pending_initial_state", [np.asarray(s, dtype=np.float64) for s in states])
+        identity = PolicyProcessorPipeline(steps=[])
+        with _without_rollout_progress_bar(), _noise_per_episode(self.loaded, seeds):
+            out = rollout(
+                vector,
+                self.loaded.policy,
+                identity,
+                identity,
+                self.loaded.preprocessor,
+                self.loaded.postprocessor,
+            )
+        vector.set_attr("hold_after_episode", False)
+        done, success, reward = out["done"].numpy(), out["success"].numpy(), out["reward"].numpy()
+        results = []
+        for i in range(len(envs)):
+            steps = int(np.argmax(done[i]) + 1) if done[i].any() else done.shape[1]
+            results.append((bool(success[i, :steps].any()), steps, float(reward[i, :steps].sum())))
+        return results
+
     def close(self) -> None:
-        for env in self._envs.values():
+        for pool in self._pools.values():
+            pool.close()
+        self._pools.clear()
+
+
+def _stacked_pixels(observations: list[dict]) -> dict:
+    if "pixels" not in observations[0]:
+        return {}
+    return {
+        "pixels": {
+            cam: np.stack([o["pixels"][cam] for o in observations]) for cam in observations[0]["pixels"]
+        }
+    }
+
+
+class EnvPool:
+    """One task's envs for batched evaluation: grown to the largest batch asked for, each env reused."""
+
+    def __init__(self, suite: TaskSuite, task: str):
+        self.suite, self.task, self.envs = suite, task, []
+
+    def take(self, n: int) -> list:
+        while len(self.envs) < n:
+            self.envs.append(self.suite.make_env(self.task, terminate_on_success=True))
+        return self.envs[:n]
+
+    def close(self) -> None:
+        for env in self.envs:
             env.close()
 
 
-def evaluate_fixed_set(
-    suite: TaskSuite, loaded: LoadedPolicy, seed: int, episodes_per_task: int, batch_size: int
-) -> tuple[list[EpisodeRecord], int, float]:
-    """Every task on its fixed evaluation states, with one progress bar over episodes.
-    Returns (records, env steps, wall seconds)."""
-    from tqdm import tqdm
+@contextlib.contextmanager
+def one_torch_thread():
+    import torch
 
-    bar = tqdm(
-        total=len(suite.tasks) * episodes_per_task, desc="evaluating", unit="episode", dynamic_ncols=True
-    )
-    evaluator = BatchedEvaluator(suite, loaded, batch_size, progress=bar)
-    start = time.perf_counter()
-    records: list[EpisodeRecord] = []
-    for task in suite.tasks:
-        records += evaluator.run(task, evaluation_seeds(seed, task, episodes_per_task))
-    evaluator.close()
-    bar.close()
-    return records, evaluator.env_steps, time.perf_counter() - start
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _noise_per_episode(loaded: LoadedPolicy, episode_seeds: list[int]):
+    """For a policy that samples its actions (Diffusion), each episode's noise from its own seed: the row of the
+    batch gets `randn` from a generator seeded by the episode, drawn every step, so the noise of an episode's
+    k-th chunk does not depend on the batch it runs in. Other policies are left as they are."""
+    import torch
+
+    if getattr(loaded.config, "type", None) != "diffusion":
+        return contextlib.nullcontext()
+    policy, cfg = loaded.policy, loaded.config
+    shape = (cfg.horizon, cfg.action_feature.shape[0])
+    generators = [
+        torch.Generator().manual_seed(derive_seed(s, "policy-noise") % 2**63) for s in episode_seeds
+    ]
+    stock = policy.select_action
+
+    def select_action(batch, noise=None):
+        noise = torch.stack([torch.randn(shape, generator=g) for g in generators]).to(cfg.device)
+        return stock(batch, noise=noise)
+
+    return temporarily_set(policy, "select_action", select_action)
 
 
 def success_table(records: list[EpisodeRecord], tasks: list[str]) -> pd.DataFrame:
@@ -173,46 +267,3 @@ def write_eval_outputs(
     tmp.replace(output_dir / "eval_episodes.parquet")
     summary = {**meta, "per_task": success.to_dict(orient="records")}
     atomic_write_text(output_dir / "eval_summary.json", json.dumps(summary, indent=2))
-
-
-def run_eval(cfg) -> pd.DataFrame:
-    """`adademo-eval`."""
-    from adademo_lerobot.dataset.features import dataset_features
-    from adademo_lerobot.dataset.metadata import load_suite_config
-    from adademo_lerobot.policy import load_checked_policy
-    from adademo_lerobot.suites import make_suite
-
-    if cfg.policy.path is None:
-        raise AdaDemoError("--policy.path is required (a LeRobot checkpoint's pretrained_model folder)")
-    if cfg.episodes_per_task < 1:
-        raise AdaDemoError(f"--episodes_per_task must be >= 1, got {cfg.episodes_per_task}")
-    if cfg.output_dir is None:
-        raise AdaDemoError("--output_dir is required")
-    suite = make_suite(load_suite_config(Path(cfg.dataset.root)) if cfg.dataset.root else cfg.suite)
-    import torch
-
-    torch.set_num_threads(cfg.torch_threads)
-    loaded = load_checked_policy(cfg.policy.path, dataset_features(suite), cfg.device)
-    records, env_steps, elapsed = evaluate_fixed_set(
-        suite, loaded, cfg.seed, cfg.episodes_per_task, cfg.eval.batch_size
-    )
-    success = success_table(records, suite.tasks)
-    print(format_success_table(success))
-    write_eval_outputs(
-        Path(cfg.output_dir),
-        records,
-        success,
-        {
-            "policy_path": str(cfg.policy.path),
-            "seed": cfg.seed,
-            "episodes_per_task": cfg.episodes_per_task,
-            "env_steps": env_steps,
-            "wall_seconds": elapsed,
-            "suite": suite.config.to_dict(),
-        },
-    )
-    print(
-        f"{env_steps} env steps in {elapsed:.1f} s ({env_steps / max(elapsed, 1e-9):.0f} steps/s); "
-        f"records: {Path(cfg.output_dir) / 'eval_episodes.parquet'}"
-    )
-    return success

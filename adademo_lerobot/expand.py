@@ -10,18 +10,17 @@ kill between the ledger write and the journal's end is finished, never mistaken 
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 from tqdm import tqdm
 
-from adademo_lerobot.collectors import make_collector
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.layout import COL_ROUND
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.dataset.store import DemoDataset, recover_interrupted_write
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.executors import check_executor_args, make_executor
 from adademo_lerobot.ledger import RoundJournal, append_ledger, ledger_rounds
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies import make_strategy, planned_demos
@@ -127,13 +126,15 @@ def plan(cfg, suite, ctx: RoundContext) -> list[dict]:
     ]
     body.append(("total", "", "", sum(r["predicted_demos"] for r in rows)))
     print(table(["task", "success", "SR", "predicted demos"], body))
-    print(f"({ctx.evaluator.env_steps} evaluation env steps)")
+    print(f"({ctx.eval_env_steps} evaluation env steps)")
     return rows
 
 
-def run_expand(cfg, round_index: int | None = None) -> list[TaskRoundRecord] | list[dict]:
-    """One round. `round_index` is given by adademo-run (its one truth); alone, the command finds the next one."""
+def run_expand(cfg, round_index: int | None = None, executor=None) -> list[TaskRoundRecord] | list[dict]:
+    """One round. `round_index` is given by adademo-run (its one truth); alone, the command finds the next one.
+    `executor`: adademo-run's, kept across rounds (else one is made from the flags for this round)."""
     validate(cfg)
+    check_executor_args(cfg.executor, cfg.ray)
     root = Path(cfg.dataset.root)
     strategy = make_strategy(cfg.strategy)
     needs_policy = strategy.needs_policy or cfg.plan_only
@@ -143,26 +144,31 @@ def run_expand(cfg, round_index: int | None = None) -> list[TaskRoundRecord] | l
         recover_interrupted_write(root)  # a write a kill left half-done is ours to roll back
     check_dataset_integrity(root)  # refuse a damaged dataset before anything is written
     suite = make_suite(load_suite_config(root))
-    loaded = None
+    if not cfg.plan_only:
+        cfg.collector.validate(suite)
     if needs_policy:
-        import torch
+        from adademo_lerobot.policy import check_policy
 
-        from adademo_lerobot.policy import load_checked_policy
+        check_policy(cfg.policy.path, dataset_features(suite))
+    own_executor = executor is None
+    if own_executor:
+        executor = make_executor(
+            cfg.executor, cfg.ray, suite, cfg.collector, cfg.eval.batch_size, cfg.device, cfg.torch_threads
+        )
+    try:
+        executor.use_policy(str(cfg.policy.path) if needs_policy else None)
+        return _expand(cfg, suite, executor, strategy, needs_policy, root, round_index)
+    finally:
+        if own_executor:
+            executor.close()
 
-        torch.set_num_threads(cfg.torch_threads)
-        loaded = load_checked_policy(cfg.policy.path, dataset_features(suite), cfg.device)
-    collector = make_collector(cfg.collector, suite)
-    evaluator = None
-    if loaded:
-        from adademo_lerobot.evaluation import BatchedEvaluator
 
-        evaluator = BatchedEvaluator(suite, loaded, cfg.eval.batch_size)
+def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
     dataset = (
-        DemoDataset.open(cfg.dataset.repo_id, root)
-        if not cfg.plan_only
-        else DemoDataset(cfg.dataset.repo_id, root, suite.config)
+        DemoDataset(cfg.dataset.repo_id, root, suite.config)
+        if cfg.plan_only
+        else DemoDataset.open(cfg.dataset.repo_id, root)
     )
-
     if round_index is None:
         round_index = next_round(root)
     max_eval = cfg.max_eval_episodes_per_task or 2 * (cfg.target_successes + cfg.max_demos_per_task)
@@ -175,10 +181,9 @@ def run_expand(cfg, round_index: int | None = None) -> list[TaskRoundRecord] | l
         "commit_every": cfg.commit_every,
         "policy_path": str(cfg.policy.path) if needs_policy else None,
     }
+    expert = cfg.collector.expert_name(suite)
     if cfg.plan_only:
-        ctx = RoundContext(
-            suite, dataset, collector, round_index, cfg.seed, source="plan", evaluator=evaluator, **settings
-        )
+        ctx = RoundContext(suite, dataset, executor, expert, round_index, cfg.seed, source="plan", **settings)
         return plan(cfg, suite, ctx)
 
     finish_stale_journals(root)
@@ -198,7 +203,9 @@ def run_expand(cfg, round_index: int | None = None) -> list[TaskRoundRecord] | l
             "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
         }
     )
-    bar = tqdm(suite.tasks, desc=f"round {round_index} ({cfg.strategy})", unit="task", dynamic_ncols=True)
+    bar = tqdm(
+        total=len(suite.tasks), desc=f"round {round_index} ({cfg.strategy})", unit="task", dynamic_ncols=True
+    )
 
     def progress(task: str, record: TaskRoundRecord) -> None:
         bar.set_postfix(
@@ -208,30 +215,30 @@ def run_expand(cfg, round_index: int | None = None) -> list[TaskRoundRecord] | l
     ctx = RoundContext(
         suite,
         dataset,
-        collector,
+        executor,
+        expert,
         round_index,
         cfg.seed,
         source=cfg.strategy,
-        evaluator=evaluator,
         journal=journal,
         on_progress=progress,
         **settings,
     )
-    records = []
-    for task in bar:
-        started = time.perf_counter()
+
+    def expand_task(task: str) -> TaskRoundRecord:
         record = strategy.expand_task(ctx, task)
-        ctx.flush(task, started)
-        ctx.evaluation_cost(task, record)
-        record.wall_seconds = round(journal.seconds(task), 3)
-        records.append(record)
+        bar.update(1)
+        return record
+
+    records = ctx.run_tasks(expand_task)
     bar.close()
+    for record in records:
+        ctx.evaluation_cost(record.task, record)
+        record.wall_seconds = round(journal.seconds(record.task), 3)
     check_ledger_matches_dataset(root, round_index, records)
     append_ledger(root, records)
     _after_ledger_written()
     journal.finish()
-    if evaluator:
-        evaluator.close()
     print(format_round_table(records))
     print(f"round {round_index}: {sum(r.demos_added for r in records)} new episodes in {root}")
     return records

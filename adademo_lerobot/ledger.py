@@ -46,8 +46,9 @@ def append_ledger(root: Path, records: list[TaskRoundRecord]) -> None:
 
 
 class RoundJournal:
-    """The journal of one round. Entries: `start` (settings), `eval` (one evaluation outcome), `expert_failure`,
-    `time` (seconds spent on a task), and whatever a strategy records for itself (e.g. `plan`)."""
+    """The journal of one round. Entries: `start` (settings), `eval` (one evaluation outcome), `demo` (a collected
+    demonstration's cost), `expert_failure`, `time` (seconds spent on a task), and whatever a strategy records
+    for itself (e.g. `plan`)."""
 
     def __init__(self, root: Path, round_index: int):
         self.path = Path(root) / ADADEMO_DIR / f"journal-round-{round_index:03d}.jsonl"
@@ -55,6 +56,7 @@ class RoundJournal:
         self._entries: list[dict] | None = None
         self._evals: dict[str, dict[int, dict]] = defaultdict(dict)
         self._expert_failures: dict[str, dict[int, dict]] = defaultdict(dict)
+        self._demos: dict[str, dict[int, dict]] = defaultdict(dict)
         self._seconds: dict[str, float] = defaultdict(float)
 
     @staticmethod
@@ -72,6 +74,8 @@ class RoundJournal:
             self._evals[entry["task"]][entry["seed"]] = entry
         elif kind == "expert_failure":
             self._expert_failures[entry["task"]][entry["seed"]] = entry
+        elif kind == "demo":
+            self._demos[entry["task"]][entry["seed"]] = entry
         elif kind == "time":
             self._seconds[entry["task"]] += entry["seconds"]
 
@@ -111,6 +115,11 @@ class RoundJournal:
     def expert_failures(self, task: str) -> dict[int, dict]:
         self.entries()
         return self._expert_failures[task]
+
+    def demos(self, task: str) -> dict[int, dict]:
+        """Demonstrations collected this round (their cost), by seed; a demo counts once it is in the dataset."""
+        self.entries()
+        return self._demos[task]
 
     def seconds(self, task: str) -> float:
         self.entries()

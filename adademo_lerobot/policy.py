@@ -78,6 +78,17 @@ def check_policy_matches_features(policy_cfg, features: dict[str, dict]) -> None
         raise AdaDemoError("the checkpoint's features do not match the dataset: " + "; ".join(problems))
 
 
+def check_policy(path: str | Path, features: dict[str, dict]):
+    """Refuse a checkpoint that is missing or does not match `features`, reading only its config (the workers
+    load the weights). Returns the config."""
+    path = check_checkpoint_folder(path)
+    cfg = read_policy_config(path)
+    if cfg.type not in POLICY_TYPES:
+        raise AdaDemoError(f"{path} holds a {cfg.type!r} policy; adademo supports {', '.join(POLICY_TYPES)}")
+    check_policy_matches_features(cfg, features)
+    return cfg
+
+
 def load_checked_policy(path: str | Path, features: dict[str, dict], device: str = "cpu") -> LoadedPolicy:
     """Load a checkpoint and refuse it unless it matches `features` (the suite's dataset features)."""
     path = check_checkpoint_folder(path)

@@ -19,11 +19,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import torch
 from lerobot.configs.policies import PreTrainedConfig
 
 from adademo_lerobot.collect import collect_fresh, format_collection_table
-from adademo_lerobot.collectors import CollectorConfig, make_collector
+from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.configs import (
     DatasetArgs,
     EvalBatchArgs,
@@ -36,16 +35,13 @@ from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.evaluation import (
-    evaluate_fixed_set,
-    format_success_table,
-    success_table,
-    write_eval_outputs,
-)
+from adademo_lerobot.evaluation import format_success_table, success_table, write_eval_outputs
+from adademo_lerobot.executors import RayArgs, check_executor_args, make_executor
 from adademo_lerobot.expand import run_expand
 from adademo_lerobot.files import atomic_write_text
+from adademo_lerobot.fixed_set import evaluate_fixed_set
 from adademo_lerobot.ledger import ledger_rounds
-from adademo_lerobot.policy import load_checked_policy
+from adademo_lerobot.policy import check_policy
 from adademo_lerobot.strategies import STRATEGIES
 from adademo_lerobot.suites import SuiteConfig, make_suite
 from adademo_lerobot.train import AdaDemoTrainConfig, TrainDatasetConfig, find_last_checkpoint, train
@@ -71,6 +67,8 @@ class RunTrainArgs:
     save_freq: int = 1000
     torch_threads: int = 2
     seed: int = 1000
+    # Training batches from tensors in memory (state datasets); false: LeRobot's per-sample loading.
+    in_memory: bool = True
 
 
 @dataclass
@@ -100,6 +98,9 @@ class RunConfig:
     eval: RunEvalArgs = field(default_factory=RunEvalArgs)
     device: str = "cpu"
     commit_every: int = 10
+    # Where the episodes of collection, expansion and evaluation run: `local` (this process) or `ray`.
+    executor: str = "local"
+    ray: RayArgs = field(default_factory=RayArgs)
     # Push the final dataset to the hub as hub_repo_id (token from HF_TOKEN or your login).
     push_to_hub: bool = False
     hub_repo_id: str | None = None
@@ -129,6 +130,7 @@ def validate(cfg: RunConfig) -> None:
         raise AdaDemoError(f"--train.steps_schedule must be one of {', '.join(STEPS_SCHEDULES)}")
     if cfg.push_to_hub and not cfg.hub_repo_id:
         raise AdaDemoError("--push_to_hub=true needs --hub_repo_id=USER/NAME")
+    check_executor_args(cfg.executor, cfg.ray)
 
 
 class RunState:
@@ -190,7 +192,7 @@ def run(cfg: RunConfig) -> Path:
     validate(cfg)
     run_dir = Path(cfg.run_dir)
     suite = make_suite(cfg.suite)
-    collector = make_collector(cfg.collector, suite)
+    cfg.collector.validate(suite)
     run_dir.mkdir(parents=True, exist_ok=True)
     settings = {
         "suite": suite.config.to_dict(),
@@ -210,48 +212,78 @@ def run(cfg: RunConfig) -> Path:
     state = RunState(run_dir, settings)
     dataset_root = run_dir / "dataset"
     repo_id = f"local/{run_dir.name}"
-
-    def collect_initial():
-        if not has_dataset(dataset_root):
-            DemoDataset.check_new_root(dataset_root)
-            dataset = DemoDataset(repo_id, dataset_root, suite.config)
-        else:
-            dataset = DemoDataset.open(repo_id, dataset_root)
-        records = collect_fresh(
-            suite,
-            collector,
-            dataset,
-            dict.fromkeys(suite.tasks, cfg.initial_demos_per_task),
-            cfg.seed,
-            round_index=0,
-            source="initial",
-            commit_every=cfg.commit_every,
-            desc="initial demos",
-        )
-        print(format_collection_table(records))
-        return {t: r.demos_added for t, r in records.items()}
-
-    state.stage("collect", collect_initial)
-    checkpoint = Path(
-        state.stage("train-0", train_round, cfg, run_dir, dataset_root, repo_id, 0, None)["result"]
-    )
-    state.stage("eval-0", evaluate_round, cfg, suite, run_dir, checkpoint, 0)
-    for i in range(1, cfg.rounds + 1):
-        state.stage(f"expand-{i}", expand_round, cfg, dataset_root, repo_id, checkpoint, i)
+    episodes = Episodes(cfg, suite)  # the executor, made when a stage first needs it, kept for the whole run
+    try:
+        state.stage("collect", collect_initial, cfg, suite, episodes, dataset_root, repo_id)
         checkpoint = Path(
-            state.stage(f"train-{i}", train_round, cfg, run_dir, dataset_root, repo_id, i, checkpoint)[
-                "result"
-            ]
+            state.stage("train-0", train_round, cfg, run_dir, dataset_root, repo_id, 0, None)["result"]
         )
-        state.stage(f"eval-{i}", evaluate_round, cfg, suite, run_dir, checkpoint, i)
+        state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
+        for i in range(1, cfg.rounds + 1):
+            state.stage(f"expand-{i}", expand_round, cfg, episodes, dataset_root, repo_id, checkpoint, i)
+            checkpoint = Path(
+                state.stage(f"train-{i}", train_round, cfg, run_dir, dataset_root, repo_id, i, checkpoint)[
+                    "result"
+                ]
+            )
+            state.stage(f"eval-{i}", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, i)
+    finally:
+        episodes.close()
 
     from adademo_lerobot.report import write_report
 
     report = write_report([run_dir], run_dir / "report")
     if cfg.push_to_hub:
-        state.stage("push", lambda: push(cfg, dataset_root, repo_id))
+        state.stage("push", push, cfg, dataset_root, repo_id)
     print(f"run complete: {run_dir} (report: {report})")
     return run_dir
+
+
+class Episodes:
+    """The run's executor, made on first use (a resumed run that only trains starts no Ray)."""
+
+    def __init__(self, cfg: RunConfig, suite):
+        self.cfg, self.suite, self._executor = cfg, suite, None
+
+    def get(self):
+        if self._executor is None:
+            cfg = self.cfg
+            self._executor = make_executor(
+                cfg.executor,
+                cfg.ray,
+                self.suite,
+                cfg.collector,
+                cfg.eval.batch_size,
+                cfg.device,
+                cfg.train.torch_threads,
+            )
+        return self._executor
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.close()
+
+
+def collect_initial(cfg: RunConfig, suite, episodes: Episodes, dataset_root: Path, repo_id: str) -> dict:
+    if not has_dataset(dataset_root):
+        DemoDataset.check_new_root(dataset_root)
+        dataset = DemoDataset(repo_id, dataset_root, suite.config)
+    else:
+        dataset = DemoDataset.open(repo_id, dataset_root)
+    records = collect_fresh(
+        suite,
+        dataset,
+        dict.fromkeys(suite.tasks, cfg.initial_demos_per_task),
+        cfg.seed,
+        round_index=0,
+        source="initial",
+        collector_config=cfg.collector,
+        executor=episodes.get(),
+        commit_every=cfg.commit_every,
+        desc="initial demos",
+    )
+    print(format_collection_table(records))
+    return {t: r.demos_added for t, r in records.items()}
 
 
 def train_round(
@@ -285,15 +317,19 @@ def train_round(
         sampler=cfg.train.sampler,
         min_task_weight=cfg.train.min_task_weight,
         torch_threads=cfg.train.torch_threads,
+        in_memory=cfg.train.in_memory,
     )
     return str(train(train_cfg).resolve())
 
 
-def evaluate_round(cfg: RunConfig, suite, run_dir: Path, checkpoint: Path, i: int) -> dict:
-    torch.set_num_threads(cfg.train.torch_threads)
-    loaded = load_checked_policy(checkpoint, dataset_features(suite), cfg.device)
+def evaluate_round(
+    cfg: RunConfig, suite, episodes: Episodes, run_dir: Path, checkpoint: Path, i: int
+) -> dict:
+    check_policy(checkpoint, dataset_features(suite))
+    executor = episodes.get()
+    executor.use_policy(str(checkpoint))
     records, env_steps, seconds = evaluate_fixed_set(
-        suite, loaded, cfg.eval.seed, cfg.eval.episodes_per_task, cfg.eval.batch_size
+        suite, executor, cfg.eval.seed, cfg.eval.episodes_per_task
     )
     table = success_table(records, suite.tasks)
     print(f"round {i} evaluation (fixed set, {cfg.eval.episodes_per_task} episodes per task):")
@@ -308,7 +344,9 @@ def evaluate_round(cfg: RunConfig, suite, run_dir: Path, checkpoint: Path, i: in
     return {"average_success": float(table.success_rate.iloc[-1])}
 
 
-def expand_round(cfg: RunConfig, dataset_root: Path, repo_id: str, checkpoint: Path, i: int) -> dict:
+def expand_round(
+    cfg: RunConfig, episodes: Episodes, dataset_root: Path, repo_id: str, checkpoint: Path, i: int
+) -> dict:
     """Expansion round i of the run: the run's round number is the one truth handed to `run_expand`."""
     if i in ledger_rounds(dataset_root):  # killed after the round finished, before the run marked it done
         eps = read_episode_metadata(dataset_root)
@@ -328,7 +366,7 @@ def expand_round(cfg: RunConfig, dataset_root: Path, repo_id: str, checkpoint: P
         torch_threads=cfg.train.torch_threads,
         commit_every=cfg.commit_every,
     )
-    records = run_expand(expand_cfg, round_index=i)
+    records = run_expand(expand_cfg, round_index=i, executor=episodes.get())
     return {"demos_added": {r.task: r.demos_added for r in records}}
 
 

@@ -22,6 +22,7 @@ from lerobot.configs.train import TrainPipelineConfig
 from lerobot.configs.types import NormalizationMode
 from tqdm import tqdm
 
+from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.metadata import read_episode_metadata, try_load_suite_config
 from adademo_lerobot.dataset.store import recover_interrupted_write
 from adademo_lerobot.dataset.video import video_backend
@@ -51,6 +52,8 @@ class AdaDemoTrainConfig(TrainPipelineConfig):
     min_task_weight: float = 0.0
     # torch intra-op threads (2-core default; lower it when env worker processes run beside training).
     torch_threads: int = 2
+    # Serve batches from tensors held in memory (datasets without camera frames); false: LeRobot's loading.
+    in_memory: bool = True
     num_workers: int = 0
     batch_size: int = 64
     steps: int = 3000
@@ -248,14 +251,18 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         seed=cfg.seed or 0,
         skip=step * cfg.batch_size * n,
     )
+    if cfg.in_memory and InMemoryFrames.supports(dataset):
+        frames, loader_args = InMemoryFrames(dataset), {"collate_fn": whole_batch, "num_workers": 0}
+    else:
+        frames = dataset
+        loader_args = {"num_workers": cfg.num_workers, "prefetch_factor": 2 if cfg.num_workers > 0 else None}
     dataloader = torch.utils.data.DataLoader(
-        dataset,
+        frames,
         batch_size=cfg.batch_size,
         sampler=sampler,
-        num_workers=cfg.num_workers,
         drop_last=False,
-        prefetch_factor=2 if cfg.num_workers > 0 else None,
         pin_memory=accelerator.device.type == "cuda",
+        **loader_args,
     )
     policy, optimizer, dataloader, lr_scheduler = accelerator.prepare(
         policy, optimizer, dataloader, lr_scheduler

@@ -47,9 +47,22 @@ def train_small_act(dataset: Path, out: Path, steps: int = 50, extra: tuple[str,
 
 
 def machine_line() -> str:
+    """Date, CPU, cores and the versions that decide the numbers."""
+    import os
+    from importlib import metadata
+
+    cpu = next(
+        (
+            line.split(":", 1)[1].strip()
+            for line in Path("/proc/cpuinfo").read_text().splitlines()
+            if line.startswith("model name")
+        ),
+        platform.processor() or "unknown CPU",
+    )
+    versions = ", ".join(f"{p} {metadata.version(p)}" for p in ("lerobot", "torch", "mujoco", "metaworld"))
     return (
-        f"date {time.strftime('%Y-%m-%d')}; machine: {platform.machine()}, 2 CPU cores, "
-        f"Python {platform.python_version()}"
+        f"date {time.strftime('%Y-%m-%d')}; machine: {platform.machine()} {cpu}, {os.cpu_count()} CPU cores, "
+        f"Python {platform.python_version()}, {versions}"
     )
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -38,9 +39,82 @@ def pytest_runtest_setup(item):
         pytest.skip(message)
 
 
+class CommandServer:
+    """tests/command_server.py: console scripts run in forks of a process that has imported torch and LeRobot."""
+
+    # Read when a library is imported, which the server did at its start: a command whose environment differs
+    # in one of these runs as a plain subprocess instead.
+    IMPORT_TIME = (
+        "HF_",
+        "HUGGINGFACE",
+        "MUJOCO_GL",
+        "PYOPENGL",
+        "OMP_",
+        "MKL_",
+        "TORCH",
+        "LEROBOT",
+        "ADADEMO_TESTS",
+    )
+
+    def __init__(self):
+        self.env = dict(os.environ)
+        server = str(Path(__file__).with_name("command_server.py"))
+        self.proc = subprocess.Popen(
+            [sys.executable, server], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        assert "ready" in json.loads(self.proc.stdout.readline())
+
+    def can_run(self) -> bool:
+        changed = {k for k in set(os.environ) | set(self.env) if os.environ.get(k) != self.env.get(k)}
+        return not any(k.startswith(self.IMPORT_TIME) for k in changed)
+
+    def run(self, command: str, args: list[str], timeout: int) -> subprocess.CompletedProcess:
+        request = {
+            "command": command,
+            "args": list(args),
+            "cwd": os.getcwd(),
+            "env": dict(os.environ),
+            "timeout": timeout,
+        }
+        self.proc.stdin.write(json.dumps(request) + "\n")
+        self.proc.stdin.flush()
+        reply = json.loads(self.proc.stdout.readline())
+        outputs = []
+        for key in ("stdout", "stderr"):
+            path = Path(reply[key])
+            outputs.append(path.read_text(errors="replace"))
+            path.unlink()
+        return subprocess.CompletedProcess([command, *args], reply["returncode"], *outputs)
+
+    def close(self) -> None:
+        self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+
+
+_SERVER: CommandServer | None = None
+
+
+def command_server() -> CommandServer | None:
+    """The session's command server (none with ADADEMO_TESTS_NO_FORK=1: every command is a fresh interpreter)."""
+    global _SERVER
+    if _SERVER is None and os.environ.get("ADADEMO_TESTS_NO_FORK") != "1" and hasattr(os, "fork"):
+        _SERVER = CommandServer()
+    return _SERVER
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _SERVER is not None:
+        _SERVER.close()
+
+
 def run_cli(command: str, *args: str, check: bool = True, timeout: int = 900) -> subprocess.CompletedProcess:
-    """Run one of our console scripts as a user would."""
-    proc = subprocess.run([str(BIN / command), *args], capture_output=True, text=True, timeout=timeout)
+    """Run one of our (or LeRobot's) console scripts as a user would: its entry point, its own process, argv,
+    working directory, output and exit code (forked from the command server, which saves the import time)."""
+    server = command_server()
+    if server is not None and server.can_run():
+        proc = server.run(command, list(args), timeout)
+    else:
+        proc = subprocess.run([str(BIN / command), *args], capture_output=True, text=True, timeout=timeout)
     if check and proc.returncode != 0:
         raise AssertionError(
             f"{command} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
@@ -120,23 +194,18 @@ def act_run(reach_push_dataset, tmp_path_factory):
 def stock_act_checkpoint(reach_push_dataset, tmp_path_factory) -> Path:
     """An ACT trained for 2 steps by stock `lerobot-train` on the reach/push dataset."""
     out = tmp_path_factory.mktemp("stock") / "run"
-    proc = subprocess.run(
-        [
-            str(BIN / "lerobot-train"),
-            "--dataset.repo_id=local/demo",
-            f"--dataset.root={reach_push_dataset}",
-            *TINY_ACT,
-            "--steps=2",
-            "--save_freq=2",
-            f"--output_dir={out}",
-            "--policy.push_to_hub=false",
-            "--num_workers=0",
-            "--env_eval_freq=0",
-            "--wandb.enable=false",
-        ],
-        capture_output=True,
-        text=True,
+    run_cli(
+        "lerobot-train",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={reach_push_dataset}",
+        *TINY_ACT,
+        "--steps=2",
+        "--save_freq=2",
+        f"--output_dir={out}",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--env_eval_freq=0",
+        "--wandb.enable=false",
         timeout=600,
     )
-    assert proc.returncode == 0, proc.stderr[-3000:]
     return out / "checkpoints" / "last" / "pretrained_model"

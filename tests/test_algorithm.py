@@ -22,11 +22,6 @@ from adademo_lerobot.strategies.task_only import TaskOnlyStrategy
 
 
 @dataclass
-class ScriptedEvaluator:
-    batch_size: int
-
-
-@dataclass
 class ScriptedRound:
     """The part of `RoundContext` the strategies use, with scripted policy outcomes ("F" fail / "S" success per
     sampled state, in order) and scripted expert results (False where the expert fails that state)."""
@@ -44,10 +39,13 @@ class ScriptedRound:
     batches: list[int] = field(default_factory=list)
     collected: list[int] = field(default_factory=list)  # seeds the expert was asked about
     fresh_requests: list[int] = field(default_factory=list)
+    asked: list[int] = field(default_factory=list)  # seeds the expert was started on ahead of time
 
     def __post_init__(self):
-        self.evaluator = ScriptedEvaluator(self.batch_size)
         self._position: dict[int, int] = {}
+
+    def ask_expert(self, task: str, seeds: list[int]) -> None:
+        self.asked += seeds
 
     def new_record(self, task: str, strategy: str) -> TaskRoundRecord:
         return TaskRoundRecord(
@@ -95,6 +93,7 @@ def test_stops_at_e_successes_collecting_on_every_failure_before():
     assert (r.eval_episodes, r.successes, r.failures, r.demos_added) == (6, 3, 3, 3)
     assert ctx.evaluated == seeds(6)  # the loop's own samples, in order, none beyond the stopping point
     assert ctx.collected == [seeds(6)[k] for k in (0, 1, 3)]  # demos exactly from the failed states
+    assert ctx.asked == ctx.collected  # the expert was started ahead only on states it is then asked about
     assert not r.cap_hit and not r.eval_bound_hit
 
 

@@ -83,9 +83,8 @@ def test_stock_metaworld_replay_reproduces_observations_and_success(reach_push_d
 def test_suite_api_replay_for_several_tasks(tmp_path):
     tasks = ["pick-place-v3", "door-open-v3", "drawer-open-v3"]
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(tasks)))
-    collector = make_collector(ScriptedCollectorConfig(), suite)
     dataset = DemoDataset("local/replay", tmp_path / "ds", suite.config)
-    collect_fresh(suite, collector, dataset, dict.fromkeys(tasks, 1), seed=3, round_index=0, source="initial")
+    collect_fresh(suite, dataset, dict.fromkeys(tasks, 1), seed=3, round_index=0, source="initial")
     meta = read_episode_metadata(tmp_path / "ds")
     assert len(meta) == 3
     for ep, row in meta.iterrows():
@@ -127,7 +126,13 @@ def test_expert_retries_and_skips_failed_initial_states(tmp_path):
     dataset = DemoDataset("local/peg", tmp_path / "peg", suite.config)
     wanted = failed_draw + 1  # the draws run in order, so the failing one is among them
     summaries = collect_fresh(
-        suite, collector, dataset, {"peg-insert-side-v3": wanted}, seed=0, round_index=0, source="initial"
+        suite,
+        dataset,
+        {"peg-insert-side-v3": wanted},
+        seed=0,
+        round_index=0,
+        source="initial",
+        collector_config=ScriptedCollectorConfig(max_attempts=3),
     )
     summary = summaries["peg-insert-side-v3"]
     meta = read_episode_metadata(tmp_path / "peg")
@@ -221,3 +226,55 @@ def test_appends_keep_indices_contiguous_across_files(tmp_path):
         (i * n, (i + 1) * n) for i in range(8)
     ]
     assert list(read_episode_metadata(root)["adademo/seed"]) == [0, 1, 10, 11, 20, 21, 30, 31]
+
+
+def test_appends_write_the_same_data_files_as_stock_lerobot(tmp_path):
+    """Our appends skip LeRobot's image embedding (nothing to embed in state datasets) and read only the last
+    episode row when resuming: the data files must be exactly what stock LeRobot writes for the same frames."""
+    import dataclasses
+
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from adademo_lerobot.dataset.features import dataset_features
+
+    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3"))
+    collector = make_collector(ScriptedCollectorConfig(), suite)
+    demo = collector.collect("reach-v3", suite.sample_initial_state("reach-v3", 2), 2).demonstration
+    demos = [dataclasses.replace(demo, seed=i) for i in range(3)]
+    ours = DemoDataset("local/same", tmp_path / "ours", suite.config)
+    ours.append(suite, demos[:1], 0, "t", "c")
+    ours.append(suite, demos[1:], 1, "t", "c")  # a resumed session
+    stock = LeRobotDataset.create(
+        "local/same",
+        fps=suite.fps,
+        features=dataset_features(suite),
+        root=tmp_path / "stock",
+        robot_type="metaworld",
+    )
+    for i, d in enumerate(demos):
+        if i == 1:
+            stock.finalize()
+            stock = LeRobotDataset.resume("local/same", root=tmp_path / "stock")
+        for frame in d.frames:
+            stock.add_frame({**frame, "task": d.task})
+        stock.save_episode()
+    stock.finalize()
+    ours_files = sorted((tmp_path / "ours" / "data").rglob("*.parquet"))
+    stock_files = sorted((tmp_path / "stock" / "data").rglob("*.parquet"))
+    assert [p.relative_to(tmp_path / "ours") for p in ours_files] == [
+        p.relative_to(tmp_path / "stock") for p in stock_files
+    ]
+    for a, b in zip(ours_files, stock_files, strict=True):
+        ta, tb = pq.read_table(a), pq.read_table(b)
+        assert ta.equals(tb)
+
+        def features(
+            table,
+        ):  # the `datasets` schema; `map` also adds a random cache fingerprint, not part of it
+            return {
+                k: v
+                for k, v in json.loads(table.schema.metadata[b"huggingface"]).items()
+                if k != "fingerprint"
+            }
+
+        assert features(ta) == features(tb)

@@ -51,6 +51,7 @@ LAYERS = [
     ("adademo_lerobot.hub", 4),
     ("adademo_lerobot.record", 4),
     ("adademo_lerobot.lerobot_plugins", 4),
+    ("adademo_lerobot.fixed_set", 4),
     # the loop
     ("adademo_lerobot.run", 5),
     # entry points

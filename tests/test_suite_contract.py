@@ -116,9 +116,7 @@ def test_collected_demos_replay_exactly_from_the_dataset(name, tmp_path):
     collector = make_collector(ScriptedCollectorConfig(), suite)
     assert collector.name == CASES[name].collector
     dataset = DemoDataset("local/replay", tmp_path / "ds", suite.config)
-    collect_fresh(
-        suite, collector, dataset, dict.fromkeys(suite.tasks, 1), seed=3, round_index=0, source="initial"
-    )
+    collect_fresh(suite, dataset, dict.fromkeys(suite.tasks, 1), seed=3, round_index=0, source="initial")
     meta = read_episode_metadata(tmp_path / "ds")
     assert list(meta["task"]) == suite.tasks and set(meta["adademo/collector"]) == {collector.name}
     for ep, row in meta.iterrows():

@@ -8,6 +8,7 @@ import subprocess
 import time
 
 import numpy as np
+import pytest
 import torch
 from conftest import BIN, TINY_ACT, assert_cli_error, run_cli
 
@@ -191,3 +192,103 @@ def test_trains_on_a_plain_lerobot_dataset(reach_push_dataset, tmp_path):
     )
     saved = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "adademo_train.json").read_text())
     assert saved["episodes_per_task"] == {"reach-v3": 3, "push-v3": 3} and saved["suite"] is None
+
+
+def test_in_memory_batches_are_lerobots_samples(reach_push_dataset):
+    """The same keys, dtypes and values as LeRobot's per-sample loading collated, windows and padding included,
+    for ACT's action chunk and Diffusion's observation history + action horizon."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from torch.utils.data import default_collate
+
+    from adademo_lerobot.dataset.in_memory import InMemoryFrames
+
+    fps = 80
+    windows = {
+        "act": {"action": [i / fps for i in range(10)]},
+        "diffusion": {
+            "observation.state": [-1 / fps, 0.0],
+            "observation.environment_state": [-1 / fps, 0.0],
+            "action": [(i - 1) / fps for i in range(16)],
+        },
+    }
+    for delta_timestamps in windows.values():
+        stock = LeRobotDataset("local/demo", root=reach_push_dataset, delta_timestamps=delta_timestamps)
+        assert InMemoryFrames.supports(stock)
+        frames = InMemoryFrames(stock)
+        ends = [int(e["dataset_to_index"]) for e in stock.meta.episodes]
+        indices = [0, 1, 5, ends[0] - 1, ends[0], ends[0] + 3, ends[-1] - 2, ends[-1] - 1, 7, 7]
+        expected = default_collate([stock[i] for i in indices])
+        batch = frames.__getitems__(indices)
+        assert set(batch) == set(expected)
+        assert batch["task"] == expected["task"]
+        for key, value in expected.items():
+            if key != "task":
+                assert batch[key].dtype == value.dtype, key
+                torch.testing.assert_close(batch[key], value, rtol=0, atol=0, msg=key)
+        assert (
+            batch["action_is_pad"][indices.index(ends[-1] - 1)].sum() > 0
+        )  # a window past the episode's end
+
+
+def test_the_weighted_sampler_is_sharded_across_processes():
+    """Under `accelerate launch` each process keeps every n-th batch of the same draws: together the processes
+    see exactly the batches of one sequence, none twice, n times as many per step as one process."""
+    from accelerate.data_loader import prepare_data_loader
+    from torch.utils.data import DataLoader
+
+    from adademo_lerobot.samplers import WeightedFrameSampler
+
+    weights = np.linspace(1.0, 3.0, 50)
+    weights /= weights.sum()
+    steps, batch = 6, 4
+    everything = [
+        b.tolist()
+        for b in DataLoader(
+            range(50), batch_size=batch, sampler=WeightedFrameSampler(weights, steps * batch * 2, seed=3)
+        )
+    ]
+    shards = []
+    for rank in range(2):
+        loader = DataLoader(
+            range(50), batch_size=batch, sampler=WeightedFrameSampler(weights, steps * batch * 2, seed=3)
+        )
+        shards.append(
+            [
+                b.tolist()
+                for b in prepare_data_loader(loader, num_processes=2, process_index=rank, put_on_device=False)
+            ]
+        )
+    assert [len(s) for s in shards] == [steps, steps]
+    assert shards[0] == everything[0::2] and shards[1] == everything[1::2]
+
+
+@pytest.mark.slow
+def test_trains_under_accelerate_launch_with_two_cpu_processes(reach_push_dataset, tmp_path):
+    out = tmp_path / "ddp"
+    proc = subprocess.run(
+        [
+            str(BIN / "accelerate"),
+            "launch",
+            "--cpu",
+            "--num_processes=2",
+            "--num_machines=1",
+            "--mixed_precision=no",
+            "--dynamo_backend=no",
+            "-m",
+            "adademo_lerobot.scripts.train",
+            *data_args(reach_push_dataset),
+            *TINY_ACT,
+            "--steps=6",
+            "--save_freq=3",
+            "--torch_threads=1",
+            f"--output_dir={out}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    state = json.loads((out / "checkpoints" / "last" / "training_state" / "training_step.json").read_text())
+    assert state["step"] == 6 and first_action(
+        out / "checkpoints" / "last" / "pretrained_model", reach_push_dataset
+    ).shape == (1, 4)

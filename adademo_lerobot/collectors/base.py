@@ -45,6 +45,17 @@ class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
     def build(self, suite: TaskSuite) -> ExpertCollector:
         """The collector this config describes, for `suite`."""
 
+    def validate(self, suite: TaskSuite) -> None:
+        """Refuse a bad expert (unknown for the suite, a missing or mismatched checkpoint) before anything is
+        written: builds it once (cheap: simulators and policies load on first use)."""
+        collector = self.build(suite)
+        if hasattr(collector, "close"):
+            collector.close()
+
+    @abc.abstractmethod
+    def expert_name(self, suite: TaskSuite) -> str:
+        """The name recorded in each episode's `adademo/collector` (without building the expert)."""
+
 
 class ExpertCollector(Protocol):
     name: str

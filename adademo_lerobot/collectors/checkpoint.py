@@ -40,6 +40,9 @@ class PolicyCollectorConfig(CollectorConfig):
     def build(self, suite: TaskSuite) -> ExpertCollector:
         return CheckpointExpert(suite, self)
 
+    def expert_name(self, suite: TaskSuite) -> str:
+        return CheckpointExpert.name
+
 
 class CheckpointExpert(SimulatedExpertCollector):
     name = "policy"

@@ -25,6 +25,13 @@ class ScriptedCollectorConfig(CollectorConfig):
     `adroit_scripted`)."""
 
     def build(self, suite: TaskSuite) -> ExpertCollector:
+        return self._expert_class(suite)(suite, self)
+
+    def expert_name(self, suite: TaskSuite) -> str:
+        return self._expert_class(suite).name
+
+    @staticmethod
+    def _expert_class(suite: TaskSuite) -> type:
         if suite.name not in SCRIPTED_EXPERTS:
             raise AdaDemoError(f"no scripted expert for suite {suite.name!r}; use --collector.type=policy")
-        return SCRIPTED_EXPERTS[suite.name](suite, self)
+        return SCRIPTED_EXPERTS[suite.name]

@@ -149,6 +149,62 @@ def _saving_extra_columns(dataset, columns: dict):
     return temporarily_set(meta, "save_episode", save_with_columns)
 
 
+class LastEpisodeRow:
+    """`meta.episodes` for an append: only the last episode's row (without its stats), found at its index.
+
+    `LeRobotDataset.resume` loads every row of `meta/episodes` (through a `datasets` cache), which makes an append
+    cost O(dataset); appending reads only the last row (where the next episode's frames and files start)."""
+
+    def __init__(self, root: Path, total_episodes: int):
+        files = episode_files(root)
+        if not files:
+            raise AdaDemoError(f"dataset {root} has no meta/episodes files; is it a LeRobot v3.0 dataset?")
+        table = pq.read_table(files[-1])
+        columns = [c for c in table.column_names if not c.startswith("stats/")]
+        self.row = table.select(columns).slice(table.num_rows - 1).to_pylist()[0]
+        self.total = total_episodes
+        if self.row["episode_index"] != total_episodes - 1:
+            raise AdaDemoError(
+                f"dataset {root} is inconsistent: meta/info.json counts {total_episodes} episodes but the last "
+                f"row of meta/episodes is episode {self.row['episode_index']}"
+            )
+
+    def __len__(self) -> int:
+        return self.total
+
+    def __getitem__(self, index: int) -> dict:
+        if index not in (-1, self.total - 1):
+            raise IndexError(f"only the last episode's metadata is loaded for appending, not episode {index}")
+        return self.row
+
+
+def _last_episode_row_only(root: Path):
+    """While a dataset is opened for appending, LeRobot's metadata loader reads only the last episode row."""
+    import lerobot.datasets.dataset_metadata as dataset_metadata
+
+    if not hasattr(dataset_metadata, "load_episodes"):  # a silent no-op swap would hide a slow append
+        raise RuntimeError("lerobot.datasets.dataset_metadata.load_episodes is gone: update adademo's append")
+    total = json.loads((root / "meta" / "info.json").read_text())["total_episodes"]
+    return temporarily_set(dataset_metadata, "load_episodes", lambda _: LastEpisodeRow(root, total))
+
+
+def _no_image_embedding_without_images():
+    """LeRobot runs `embed_images` on every saved episode: a row-by-row `datasets.map` that rewrites each row's
+    table to embed image bytes. Without image features it changes nothing but costs ~2/3 of an append (state
+    datasets); skip it then (the written files are the same, tests/test_collect.py compares them)."""
+    import datasets
+    import lerobot.datasets.dataset_writer as dataset_writer
+
+    stock = dataset_writer.embed_images
+
+    def embed_images(dataset):
+        if any(isinstance(ft, datasets.Image) for ft in dataset.features.values()):
+            return stock(dataset)
+        return dataset
+
+    return temporarily_set(dataset_writer, "embed_images", embed_images)
+
+
 class DemoDataset:
     """Create or append to an adademo LeRobot dataset; every append is one crash-safe transaction."""
 
@@ -213,25 +269,27 @@ class DemoDataset:
                 _add_adademo_columns(path, suite.name)
             if suite_missing:  # LeRobot's tools copy no extra files: keep the (rebuilt) suite from now on
                 atomic_write_text(self.root / SUITE_FILE, suite.config.to_json())
-            dataset = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=video_backend())
+            with _last_episode_row_only(self.root):
+                dataset = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=video_backend())
         # One "Map" bar per episode otherwise; disabled after opening, whose loader turns the bars back on.
         datasets.disable_progress_bars()
         indices = []
-        for demo in demos:
-            for frame in demo.frames:
-                dataset.add_frame({**frame, "task": demo.task})
-            indices.append(dataset.meta.total_episodes)
-            columns = {
-                COL_INITIAL_STATE: np.asarray(demo.initial_state, dtype=np.float64).tolist(),
-                COL_SEED: int(demo.seed),
-                COL_ROUND: int(round_index),
-                COL_SOURCE: source,
-                COL_COLLECTOR: collector,
-                COL_SUITE: suite.name,
-            }
-            with _saving_extra_columns(dataset, columns):
-                dataset.save_episode()
-        dataset.finalize()
+        with _no_image_embedding_without_images():
+            for demo in demos:
+                for frame in demo.frames:
+                    dataset.add_frame({**frame, "task": demo.task})
+                indices.append(dataset.meta.total_episodes)
+                columns = {
+                    COL_INITIAL_STATE: np.asarray(demo.initial_state, dtype=np.float64).tolist(),
+                    COL_SEED: int(demo.seed),
+                    COL_ROUND: int(round_index),
+                    COL_SOURCE: source,
+                    COL_COLLECTOR: collector,
+                    COL_SUITE: suite.name,
+                }
+                with _saving_extra_columns(dataset, columns):
+                    dataset.save_episode()
+            dataset.finalize()
         if creating:
             if self.root.exists():
                 self.root.rmdir()  # an empty folder (anything else was refused by check_new_root)
@@ -239,34 +297,3 @@ class DemoDataset:
         else:
             _commit_write(self.root)
         return indices
-
-
-class BufferedAppender:
-    """Buffers demonstrations and commits them to the dataset every `commit_every` episodes."""
-
-    def __init__(
-        self,
-        dataset: DemoDataset,
-        suite: TaskSuite,
-        round_index: int,
-        source: str,
-        collector: str,
-        commit_every: int,
-    ):
-        self.dataset, self.suite = dataset, suite
-        self.round_index, self.source, self.collector = round_index, source, collector
-        self.commit_every = max(1, commit_every)
-        self.buffer: list[Demonstration] = []
-        self.written: list[int] = []
-
-    def add(self, demo: Demonstration) -> None:
-        self.buffer.append(demo)
-        if len(self.buffer) >= self.commit_every:
-            self.flush()
-
-    def flush(self) -> None:
-        if self.buffer:
-            self.written += self.dataset.append(
-                self.suite, self.buffer, self.round_index, self.source, self.collector
-            )
-            self.buffer = []

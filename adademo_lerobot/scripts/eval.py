@@ -5,7 +5,7 @@ from adademo_lerobot.configs import EvalCommandConfig
 
 
 def main() -> None:
-    run_command("adademo_lerobot.evaluation:run_eval", EvalCommandConfig)
+    run_command("adademo_lerobot.fixed_set:run_eval", EvalCommandConfig)
 
 
 if __name__ == "__main__":

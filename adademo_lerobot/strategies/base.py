@@ -8,18 +8,20 @@ demonstrations to the dataset in crash-safe commits.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
-from adademo_lerobot.collectors.base import ExpertCollector
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
-from adademo_lerobot.dataset.store import BufferedAppender, DemoDataset
+from adademo_lerobot.dataset.store import DemoDataset
+from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.ledger import RoundJournal
-from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.records import Demonstration, TaskRoundRecord
 from adademo_lerobot.seeds import fresh_state_seed
 from adademo_lerobot.suites.base import TaskSuite
 
@@ -42,23 +44,67 @@ class Outcome:
     success: bool
 
 
-class Evaluator(Protocol):
-    """Runs the policy from the initial states of `seeds` (see `evaluation.BatchedEvaluator`)."""
+class OrderedAppender:
+    """Commits demonstrations to the dataset in the order a sequential round would: task by task in the suite's
+    order, each task's demos in the order its loop asked for them, a commit every `commit_every` demos and at
+    the end of each task. Tasks whose loops run at once (Ray executor) hold their demos until every earlier task
+    is done, so the dataset's episode order does not depend on the executor."""
 
-    batch_size: int
+    def __init__(
+        self,
+        dataset: DemoDataset,
+        suite: TaskSuite,
+        round_index: int,
+        source: str,
+        collector: str,
+        commit_every: int,
+        tasks: list[str],
+    ):
+        self.dataset, self.suite = dataset, suite
+        self.round_index, self.source, self.collector = round_index, source, collector
+        self.commit_every = max(1, commit_every)
+        self.order = list(tasks)
+        self._head = 0  # index in `order` of the first unfinished task
+        self._held: dict[str, list[Demonstration]] = {t: [] for t in tasks}
+        self._finished: set[str] = set()
+        self._buffer: list[Demonstration] = []
+        self._lock = threading.RLock()
 
-    def run(self, task: str, seeds: list[int]) -> list: ...
+    def add(self, task: str, demo: Demonstration) -> None:
+        with self._lock:
+            if self._head < len(self.order) and task == self.order[self._head]:
+                self._buffer.append(demo)
+                if len(self._buffer) >= self.commit_every:
+                    self.flush()
+            else:
+                self._held[task].append(demo)
+
+    def finish(self, task: str) -> None:
+        with self._lock:
+            self._finished.add(task)
+            while self._head < len(self.order) and self.order[self._head] in self._finished:
+                self.flush()  # the end of a task is a commit point
+                self._head += 1
+                if self._head < len(self.order):
+                    for demo in self._held.pop(self.order[self._head]):
+                        self.add(self.order[self._head], demo)
+
+    def flush(self) -> None:
+        with self._lock:
+            if self._buffer:
+                self.dataset.append(self.suite, self._buffer, self.round_index, self.source, self.collector)
+                self._buffer = []
 
 
 @dataclass
 class RoundContext:
     suite: TaskSuite
     dataset: DemoDataset
-    collector: ExpertCollector
+    executor: Executor
+    collector_name: str
     round_index: int
     seed: int
     source: str
-    evaluator: Evaluator | None = None
     journal: RoundJournal | None = None
     target_successes: int = 10
     max_demos_per_task: int = 50
@@ -69,17 +115,33 @@ class RoundContext:
     policy_path: str | None = None
     on_progress: Callable[[str, TaskRoundRecord], None] | None = None
     _committed: dict[str, set[int]] = field(default_factory=dict)
-    _appender: BufferedAppender | None = None
+    _pending: dict[tuple[str, int], Pending] = field(default_factory=dict)
+    _appender: OrderedAppender | None = None
+    _lock: threading.RLock = field(default_factory=threading.RLock)
+    eval_env_steps: int = (
+        0  # env steps of the evaluations this context ran (not those reused from the journal)
+    )
 
     def __post_init__(self) -> None:
-        self._appender = BufferedAppender(
-            self.dataset, self.suite, self.round_index, self.source, self.collector.name, self.commit_every
+        self._appender = OrderedAppender(
+            self.dataset,
+            self.suite,
+            self.round_index,
+            self.source,
+            self.collector_name,
+            self.commit_every,
+            self.suite.tasks,
         )
         if (self.dataset.root / "meta" / "info.json").exists():
             eps = self.dataset.episodes()
             this_round = eps[eps[COL_ROUND] == self.round_index]
             for task, seeds in this_round.groupby("task")[COL_SEED]:
                 self._committed[task] = set(seeds.astype(np.int64).tolist())
+
+    @property
+    def batch_size(self) -> int:
+        """Episodes evaluated side by side in one unit of work (`--eval.batch_size`)."""
+        return self.executor.batch_size
 
     def new_record(self, task: str, strategy: str) -> TaskRoundRecord:
         return TaskRoundRecord(
@@ -92,22 +154,25 @@ class RoundContext:
             self.policy_path,
         )
 
+    def _journal(self, *entries: dict) -> None:
+        if self.journal:
+            with self._lock:
+                self.journal.append(*entries)
+
     # -- evaluation -------------------------------------------------------------------------------------
     def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
         """Policy outcomes from these seeds' initial states; journaled outcomes are reused, not re-run."""
-        known = self.journal.evaluations(task) if self.journal else {}
+        known = dict(self.journal.evaluations(task)) if self.journal else {}
         todo = [s for s in seeds if s not in known]
         if todo:
-            if self.evaluator is None:
-                raise RuntimeError("this strategy has no policy to evaluate")
             fresh = {
                 r.seed: {"type": "eval", "task": task, "seed": r.seed, "success": r.success, "steps": r.steps}
-                for r in self.evaluator.run(task, todo)
+                for r in self.executor.evaluate(task, todo).result()
             }
-            if self.journal:
-                self.journal.append(*(fresh[s] for s in todo))  # also indexes them into `known`
-            else:
-                known = {**known, **fresh}
+            self._journal(*(fresh[s] for s in todo))
+            with self._lock:
+                self.eval_env_steps += sum(e["steps"] for e in fresh.values())
+            known.update(fresh)
         return [Outcome(s, bool(known[s]["success"])) for s in seeds]
 
     def evaluation_cost(self, task: str, record: TaskRoundRecord) -> None:
@@ -116,19 +181,33 @@ class RoundContext:
         record.eval_env_steps = sum(e["steps"] for e in evals.values())
 
     # -- collection -------------------------------------------------------------------------------------
+    def ask_expert(self, task: str, seeds: list[int]) -> None:
+        """Start the expert on these states now (all at once with a Ray executor; the local executor still runs
+        each when `collect_demo` needs it), skipping states this round already has an answer for."""
+        done = self._committed.get(task, set()) | set(
+            self.journal.expert_failures(task) if self.journal else ()
+        )
+        for seed in seeds:
+            if seed not in done and (task, seed) not in self._pending:
+                self._pending[(task, seed)] = self.executor.collect(task, seed)
+
     def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
         """Ask the expert for a demonstration from exactly this seed's initial state (at most once a round)."""
         if seed in self._committed.get(task, set()):
-            record.demos_added += 1  # committed before an interruption
+            record.demos_added += 1  # committed before an interruption: its cost is in the journal
+            if self.journal and seed in self.journal.demos(task):
+                record.collection_env_steps += self.journal.demos(task)[seed]["steps"]
             return True
         failures = self.journal.expert_failures(task) if self.journal else {}
         if seed in failures:
             self._count_expert_failure(record, failures[seed])
             return False
-        result = self.collector.collect(task, self.suite.sample_initial_state(task, seed), seed)
+        pending = self._pending.pop((task, seed), None) or self.executor.collect(task, seed)
+        result = pending.result()
         record.collection_env_steps += result.env_steps
         if result.demonstration is not None:
-            self._appender.add(result.demonstration)
+            self._journal({"type": "demo", "task": task, "seed": int(seed), "steps": result.env_steps})
+            self._appender.add(task, result.demonstration)
             self._committed.setdefault(task, set()).add(seed)
             record.demos_added += 1
             return True
@@ -140,8 +219,7 @@ class RoundContext:
             "steps": result.env_steps,
             "initial_state": result.initial_state.tolist(),
         }
-        if self.journal:
-            self.journal.append(entry)
+        self._journal(entry)
         self._count_expert_failure(record, entry, count_steps=False)
         return False
 
@@ -155,22 +233,50 @@ class RoundContext:
         )
 
     def collect_from_fresh_states(self, task: str, n: int, record: TaskRoundRecord) -> None:
-        """n demonstrations from fresh random initial states (no evaluation): Uniform and ablation A."""
-        for draw in range(n * MAX_DRAWS_PER_DEMO):
+        """n demonstrations from fresh random initial states (no evaluation): Uniform and ablation A.
+
+        The expert is asked ahead for as many draws as demos are still missing, so a Ray executor runs them at
+        once; the draws are consumed in order, so the same draws are used whatever the executor."""
+        draws = [
+            fresh_state_seed(self.seed, self.round_index, task, d) for d in range(n * MAX_DRAWS_PER_DEMO)
+        ]
+        for i, seed in enumerate(draws):
             if record.demos_added >= n:
                 break
-            self.collect_demo(task, fresh_state_seed(self.seed, self.round_index, task, draw), record)
+            self.ask_expert(task, draws[i : i + n - record.demos_added])
+            self.collect_demo(task, seed, record)
             self.progress(task, record)
 
     def progress(self, task: str, record: TaskRoundRecord) -> None:
         if self.on_progress is not None:
-            self.on_progress(task, record)
+            with self._lock:
+                self.on_progress(task, record)
 
-    def flush(self, task: str, started: float) -> None:
-        """Commit buffered demonstrations and journal the time spent on this task."""
-        self._appender.flush()
-        if self.journal:
-            self.journal.append({"type": "time", "task": task, "seconds": time.perf_counter() - started})
+    def finish_task(self, task: str, started: float) -> None:
+        """Commit the task's demonstrations (in order) and journal the time spent on it."""
+        self._appender.finish(task)
+        self._journal({"type": "time", "task": task, "seconds": time.perf_counter() - started})
+
+    def run_tasks(self, work: Callable[[str], TaskRoundRecord]) -> list[TaskRoundRecord]:
+        """`work(task)` for every task of the suite; records in suite order. One task after the other with the
+        local executor; side by side (one waiting thread per task, the episodes on the Ray workers) when the
+        executor runs units in parallel. Either way every task's demos are committed in suite order."""
+
+        def one(task: str) -> TaskRoundRecord:
+            started = time.perf_counter()
+            record = work(task)
+            self.finish_task(task, started)
+            return record
+
+        if not self.executor.parallel_tasks:
+            return [one(task) for task in self.suite.tasks]
+        with ThreadPoolExecutor(max_workers=len(self.suite.tasks), thread_name_prefix="adademo-task") as pool:
+            futures = [pool.submit(one, task) for task in self.suite.tasks]
+            try:
+                return [f.result() for f in futures]
+            except BaseException:
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
 
 
 class ExpansionStrategy(Protocol):

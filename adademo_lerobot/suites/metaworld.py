@@ -8,9 +8,11 @@ goal is part of the initial state the policy must condition on, and the scripted
 
 from __future__ import annotations
 
+import hashlib
 import warnings
+from collections import OrderedDict
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, partial
 
 import mujoco
 import numpy as np
@@ -91,6 +93,7 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     # Tasks move bodies/sites of the *model* during reset (e.g. door-open moves the door), so a reset
     # depends on the previous layout. Keep the pristine values to make every restore equal a fresh env's.
     env._adademo_pristine_model = {name: getattr(env.model, name).copy() for name in PRISTINE_MODEL_FIELDS}
+    env._adademo_settled_hand = SettledHandMemo()
     env.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
     if camera == "corner2":
         env.model.cam_pos[2] = [0.75, 0.075, 0.7]  # same corner2 placement as LeRobot's MetaWorld env
@@ -106,6 +109,60 @@ def hand_settling_skipped(raw_env):
         raw_env.init_tcp = raw_env.tcp_center
 
     return temporarily_set(raw_env, "_reset_hand", kinematics_only)
+
+
+class SettledHandMemo:
+    """MetaWorld's `_reset_hand` (50 x 5 physics steps that move the hand to its start) remembered exactly.
+
+    Settling is deterministic: the same model and the same simulation state going in give bit for bit the same
+    `MjData` coming out. Most tasks settle the hand before placing their objects, so every restore settles from
+    the same state; the memo keys on what the simulation reads (the state, the mocap targets, the body poses
+    tasks edit, the hand's start) and copies the whole `MjData` back on a hit. Sites (goal markers, which tasks
+    move per layout) take no part in the simulation, and reset code recomputes their world positions
+    (`set_state` runs `mj_forward`) before anything reads them, so they are left out of the key; restores are
+    checked equal to MetaWorld's own reset, trajectory included, for all 50 tasks (tests/test_suite_metaworld.py).
+    A few recent keys are kept; tasks that settle after placing objects simply miss."""
+
+    KEEP = 8
+
+    def __init__(self):
+        self._entries: OrderedDict[bytes, tuple[mujoco.MjData, np.ndarray]] = OrderedDict()
+
+    @staticmethod
+    def _key(raw_env, steps: int) -> bytes:
+        model, data = raw_env.model, raw_env.data
+        digest = hashlib.blake2b(digest_size=16)
+        for array in (
+            data.qpos,
+            data.qvel,
+            data.act,
+            data.ctrl,
+            data.mocap_pos,
+            data.mocap_quat,
+            data.qacc_warmstart,
+            np.asarray(data.time),
+            np.asarray(raw_env.hand_init_pos, np.float64),
+            np.asarray(steps),
+            model.body_pos,
+            model.body_quat,
+        ):
+            digest.update(np.ascontiguousarray(array).tobytes())
+        return digest.digest()
+
+    def settle(self, raw_env, steps: int = 50) -> None:
+        key = self._key(raw_env, steps)
+        hit = self._entries.get(key)
+        if hit is not None:
+            self._entries.move_to_end(key)
+            mujoco.mj_copyData(raw_env.data, raw_env.model, hit[0])
+            raw_env.init_tcp = hit[1].copy()
+            return
+        type(raw_env)._reset_hand(raw_env, steps)  # MetaWorld's own settling
+        snapshot = mujoco.MjData(raw_env.model)
+        mujoco.mj_copyData(snapshot, raw_env.model, raw_env.data)
+        self._entries[key] = (snapshot, np.array(raw_env.init_tcp, copy=True))
+        while len(self._entries) > self.KEEP:
+            self._entries.popitem(last=False)
 
 
 def sample_layout(raw_env, seed: int) -> np.ndarray:
@@ -146,7 +203,8 @@ def restore_layout(raw_env, layout: np.ndarray) -> np.ndarray:
     with hand_settling_skipped(raw_env):
         raw_env.reset_model()
     mujoco.mj_resetData(raw_env.model, raw_env.data)
-    obs = raw_env.reset_model()
+    with temporarily_set(raw_env, "_reset_hand", partial(raw_env._adademo_settled_hand.settle, raw_env)):
+        obs = raw_env.reset_model()
     raw_env._prev_obs = obs[:18].copy()
     obs[18:36] = raw_env._prev_obs
     return obs.astype(np.float64)

@@ -1,0 +1,144 @@
+"""Where episodes run: `--executor=local` (default: in this process, no Ray needed) or `--executor=ray` (Ray
+actors on this machine or a cluster: `--ray.address`, `--ray.num_workers`, `--ray.num_cpus_per_worker`,
+`--ray.num_gpus_per_worker`).
+
+Both hand out the same units of work (a batch of seeds to evaluate, one seed to collect a demonstration from) and
+return results as `Pending` values that the caller reads in its own order. The local executor computes a unit
+only when its result is read, so asking ahead costs nothing and a round runs exactly as a sequential loop would;
+the Ray executor starts every unit at once on its workers. Units are deterministic (every random draw comes from
+the unit's seeds), so both give the same results whatever the number of workers or the order of completion.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from adademo_lerobot.collectors import CollectorConfig
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.executors.worker import EpisodeWorker
+from adademo_lerobot.records import CollectionResult, EpisodeRecord
+from adademo_lerobot.suites import TaskSuite
+
+EXECUTORS = ("local", "ray")
+
+
+@dataclass
+class RayArgs:
+    # Address of a running Ray cluster (`ray start --head` prints it); default: start a local Ray for the command.
+    address: str | None = None
+    # Ray actors, each with its own envs, expert and copy of the policy.
+    num_workers: int = 2
+    num_cpus_per_worker: float = 1.0
+    num_gpus_per_worker: float = 0.0
+
+
+class Pending(Protocol):
+    def result(self) -> Any: ...
+
+
+class Lazy:
+    """A result computed when first read (the local executor's way of being asked ahead)."""
+
+    def __init__(self, compute: Callable[[], Any]):
+        self._compute, self._done, self._value = compute, False, None
+
+    def result(self) -> Any:
+        if not self._done:
+            self._value, self._done, self._compute = self._compute(), True, None
+        return self._value
+
+
+class Executor(Protocol):
+    batch_size: int
+    parallel_tasks: bool  # True: the caller may run several tasks' loops at once (their units interleave)
+
+    def use_policy(self, path: str | None) -> None: ...
+    def evaluate(self, task: str, seeds: list[int]) -> Pending: ...
+    def collect(self, task: str, seed: int) -> Pending: ...
+    def close(self) -> None: ...
+
+
+class LocalExecutor:
+    """One worker in this process; units run when their result is read."""
+
+    parallel_tasks = False
+
+    def __init__(
+        self,
+        suite: TaskSuite,
+        collector_config: CollectorConfig,
+        batch_size: int,
+        device: str,
+        torch_threads: int,
+    ):
+        self.batch_size = batch_size
+        self.worker = EpisodeWorker(
+            suite.config.to_dict(), collector_config, batch_size, device, torch_threads
+        )
+        self.worker.suite = suite  # the caller's suite object (its envs and state samplers are reused)
+        self._policy: str | None = None
+
+    def use_policy(self, path: str | None) -> None:
+        self._policy = str(path) if path else None
+        self.worker.use_policy(self._policy)
+
+    def evaluate(self, task: str, seeds: list[int]) -> Lazy:
+        policy = self._policy
+        return Lazy(lambda: self.worker.evaluate(task, list(seeds), policy))
+
+    def collect(self, task: str, seed: int) -> Lazy:
+        return Lazy(lambda: self.worker.collect(task, seed))
+
+    def close(self) -> None:
+        self.worker.close()
+
+
+def check_executor_args(executor: str, ray: RayArgs) -> None:
+    if executor not in EXECUTORS:
+        raise AdaDemoError(f"unknown --executor={executor!r}; choose one of {', '.join(EXECUTORS)}")
+    if executor == "ray":
+        if ray.num_workers < 1:
+            raise AdaDemoError(f"--ray.num_workers must be >= 1, got {ray.num_workers}")
+        if ray.num_cpus_per_worker <= 0 or ray.num_gpus_per_worker < 0:
+            raise AdaDemoError("--ray.num_cpus_per_worker must be > 0 and --ray.num_gpus_per_worker >= 0")
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            raise AdaDemoError(
+                "--executor=ray needs Ray, which is not installed: pip install 'adademo-lerobot[ray]'"
+            )
+
+
+def make_executor(
+    executor: str,
+    ray: RayArgs,
+    suite: TaskSuite,
+    collector_config: CollectorConfig,
+    batch_size: int,
+    device: str = "cpu",
+    torch_threads: int = 2,
+) -> Executor:
+    check_executor_args(executor, ray)
+    if batch_size < 1:
+        raise AdaDemoError(f"--eval.batch_size must be >= 1, got {batch_size}")
+    if executor == "local":
+        return LocalExecutor(suite, collector_config, batch_size, device, torch_threads)
+    from adademo_lerobot.executors.ray_executor import RayExecutor
+
+    return RayExecutor(ray, suite, collector_config, batch_size, device)
+
+
+__all__ = [
+    "EXECUTORS",
+    "CollectionResult",
+    "EpisodeRecord",
+    "Executor",
+    "Lazy",
+    "LocalExecutor",
+    "Pending",
+    "RayArgs",
+    "check_executor_args",
+    "make_executor",
+]

@@ -1,0 +1,76 @@
+"""What runs episodes: one `EpisodeWorker` builds a suite's envs and its expert once, loads each round's policy
+once, and then evaluates batches of initial states and collects demonstrations on request.
+
+The local executor calls a worker in the driver's own process; the Ray executor runs one per Ray actor. Both run
+the same code on the same units of work (a batch of seeds, or one seed), so results do not depend on where or
+in which order they run.
+"""
+
+from __future__ import annotations
+
+import os
+
+from adademo_lerobot.collectors import CollectorConfig, make_collector
+from adademo_lerobot.records import CollectionResult, EpisodeRecord
+from adademo_lerobot.suites import make_suite, suite_config_from_dict
+
+
+class EpisodeWorker:
+    def __init__(
+        self,
+        suite_config: dict,
+        collector_config: CollectorConfig,
+        eval_batch_size: int,
+        device: str,
+        torch_threads: int,
+    ):
+        import torch
+
+        torch.set_num_threads(torch_threads)
+        self.suite = make_suite(suite_config_from_dict(suite_config))
+        self.collector_config = collector_config
+        self._collector = None
+        self.eval_batch_size, self.device = eval_batch_size, device
+        self._policy_path: str | None = None
+        self._evaluator = None
+
+    @property
+    def collector(self):
+        if self._collector is None:  # built on first use: evaluation-only workers never load a policy expert
+            self._collector = make_collector(self.collector_config, self.suite)
+        return self._collector
+
+    def use_policy(self, path: str | None) -> None:
+        """Load the round's policy (once: a worker keeps it until the path changes)."""
+        if path == self._policy_path:
+            return
+        from adademo_lerobot.evaluation import BatchedEvaluator
+        from adademo_lerobot.policy import load_policy
+
+        if self._evaluator is not None:
+            self._evaluator.close()
+        self._evaluator = (
+            BatchedEvaluator(self.suite, load_policy(path, self.device), self.eval_batch_size)
+            if path
+            else None
+        )
+        self._policy_path = path
+
+    def evaluate(self, task: str, seeds: list[int], policy_path: str) -> list[EpisodeRecord]:
+        self.use_policy(policy_path)  # a restarted worker (after a crash) loads the policy again here
+        return self._evaluator.run(task, seeds)
+
+    def collect(self, task: str, seed: int) -> CollectionResult:
+        from adademo_lerobot.evaluation import one_torch_thread  # a policy expert acts as it would locally
+
+        with one_torch_thread():
+            return self.collector.collect(task, self.suite.sample_initial_state(task, seed), seed)
+
+    def pid(self) -> int:
+        return os.getpid()
+
+    def close(self) -> None:
+        if self._evaluator is not None:
+            self._evaluator.close()
+        if self._collector is not None and hasattr(self._collector, "close"):
+            self._collector.close()

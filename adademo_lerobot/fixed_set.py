@@ -1,0 +1,98 @@
+"""The fixed evaluation set: `adademo-eval`, and `adademo-run`'s evaluation after every round.
+
+`episodes_per_task` initial states per task from `seed` under a key collection never uses, the same every round
+and for every strategy. They are cut into batches of `--eval.batch_size` (always the same batches, so the same
+results on any executor); every batch is handed to the executor at once and read back in order.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pandas as pd
+from tqdm import tqdm
+
+from adademo_lerobot.collectors import ScriptedCollectorConfig
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.evaluation import format_success_table, success_table, write_eval_outputs
+from adademo_lerobot.executors import Executor, check_executor_args, make_executor
+from adademo_lerobot.records import EpisodeRecord
+from adademo_lerobot.seeds import evaluation_seeds
+from adademo_lerobot.suites import TaskSuite
+
+
+def evaluate_fixed_set(
+    suite: TaskSuite, executor: Executor, seed: int, episodes_per_task: int
+) -> tuple[list[EpisodeRecord], int, float]:
+    """Every task on its fixed evaluation states, with one progress bar over episodes (the executor already has
+    the policy). Returns (records, env steps, wall seconds)."""
+    start = time.perf_counter()
+    units = []
+    for task in suite.tasks:
+        seeds = evaluation_seeds(seed, task, episodes_per_task)
+        for begin in range(0, len(seeds), executor.batch_size):
+            units.append((task, executor.evaluate(task, seeds[begin : begin + executor.batch_size])))
+    records: list[EpisodeRecord] = []
+    with tqdm(
+        total=len(suite.tasks) * episodes_per_task, desc="evaluating", unit="episode", dynamic_ncols=True
+    ) as bar:
+        for task, pending in units:
+            batch = pending.result()
+            records += batch
+            bar.update(len(batch))
+            done = [r for r in records if r.task == task]
+            bar.set_postfix(task=task, success=f"{sum(r.success for r in done) / len(done):.0%}")
+    return records, sum(r.steps for r in records), time.perf_counter() - start
+
+
+def run_eval(cfg) -> pd.DataFrame:
+    """`adademo-eval`."""
+    from adademo_lerobot.dataset.features import dataset_features
+    from adademo_lerobot.dataset.metadata import load_suite_config
+    from adademo_lerobot.policy import check_policy
+    from adademo_lerobot.suites import make_suite
+
+    if cfg.policy.path is None:
+        raise AdaDemoError("--policy.path is required (a LeRobot checkpoint's pretrained_model folder)")
+    if cfg.episodes_per_task < 1:
+        raise AdaDemoError(f"--episodes_per_task must be >= 1, got {cfg.episodes_per_task}")
+    if cfg.output_dir is None:
+        raise AdaDemoError("--output_dir is required")
+    check_executor_args(cfg.executor, cfg.ray)
+    suite = make_suite(load_suite_config(Path(cfg.dataset.root)) if cfg.dataset.root else cfg.suite)
+    check_policy(cfg.policy.path, dataset_features(suite))
+    executor = make_executor(
+        cfg.executor,
+        cfg.ray,
+        suite,
+        ScriptedCollectorConfig(),
+        cfg.eval.batch_size,
+        cfg.device,
+        cfg.torch_threads,
+    )
+    try:
+        executor.use_policy(str(cfg.policy.path))
+        records, env_steps, elapsed = evaluate_fixed_set(suite, executor, cfg.seed, cfg.episodes_per_task)
+    finally:
+        executor.close()
+    success = success_table(records, suite.tasks)
+    print(format_success_table(success))
+    write_eval_outputs(
+        Path(cfg.output_dir),
+        records,
+        success,
+        {
+            "policy_path": str(cfg.policy.path),
+            "seed": cfg.seed,
+            "episodes_per_task": cfg.episodes_per_task,
+            "env_steps": env_steps,
+            "wall_seconds": elapsed,
+            "suite": suite.config.to_dict(),
+        },
+    )
+    print(
+        f"{env_steps} env steps in {elapsed:.1f} s ({env_steps / max(elapsed, 1e-9):.0f} steps/s); "
+        f"records: {Path(cfg.output_dir) / 'eval_episodes.parquet'}"
+    )
+    return success

@@ -1,0 +1,245 @@
+"""`--executor=ray` against `--executor=local` on a local Ray cluster this module starts: the same initial states,
+outcomes, dataset episodes (same actions, same order) and ledger, whatever the number of workers; and faults:
+a worker killed mid-round, and the driver killed mid-round, each followed by a complete, identical round."""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+from conftest import BIN, run_cli
+
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.ledger import read_ledger, read_round_evaluations
+
+pytest.importorskip("ray")
+
+
+@pytest.fixture(scope="module")
+def ray_address(tmp_path_factory):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    # Ray authenticates clients of its clusters with a token; the cluster and every command here share this one.
+    saved = {k: os.environ.get(k) for k in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN")}
+    os.environ.update(RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(16))
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    temp = tmp_path_factory.mktemp("ray")
+    proc = subprocess.run(
+        [
+            str(BIN / "ray"),
+            "start",
+            "--head",
+            f"--port={port}",
+            "--num-cpus=2",
+            "--include-dashboard=false",
+            "--disable-usage-stats",
+            f"--temp-dir={temp}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    yield f"127.0.0.1:{port}"
+    subprocess.run([str(BIN / "ray"), "stop", "--force"], capture_output=True, timeout=120, env=env)
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+
+
+@pytest.fixture(scope="module")
+def ckpt(act_run):
+    return act_run / "checkpoints" / "last" / "pretrained_model"
+
+
+def ray_flags(address: str, workers: int = 2) -> list[str]:
+    return ["--executor=ray", f"--ray.address={address}", f"--ray.num_workers={workers}"]
+
+
+def frames_by_episode(root: Path) -> dict[tuple[str, int], np.ndarray]:
+    eps = read_episode_metadata(root)
+    data = pd.concat(pq.read_table(p).to_pandas() for p in sorted((root / "data").rglob("*.parquet")))
+    actions = {}
+    for index, row in eps.iterrows():
+        rows = data[data.episode_index == index]
+        actions[(row.task, int(row["adademo/seed"]))] = np.stack(rows["action"].to_numpy())
+    return actions
+
+
+def same_round(a: Path, b: Path, round_index: int) -> None:
+    """Two datasets that ran the same round: same episodes in the same order with the same actions, the same
+    ledger (but wall time) and the same evaluation outcomes."""
+    ea, eb = read_episode_metadata(a), read_episode_metadata(b)
+    assert list(zip(ea.task, ea["adademo/seed"], strict=True)) == list(
+        zip(eb.task, eb["adademo/seed"], strict=True)
+    )
+    fa, fb = frames_by_episode(a), frames_by_episode(b)
+    for key in fa:
+        np.testing.assert_array_equal(fa[key], fb[key])
+
+    def ledger(root):
+        return [{k: v for k, v in r.items() if k != "wall_seconds"} for r in read_ledger(root)]
+
+    assert ledger(a) == ledger(b)
+
+    def outcomes(root):
+        return sorted(
+            (e["type"], e["task"], e["seed"], e.get("success"), e.get("steps"))
+            for e in read_round_evaluations(root, round_index)
+            if e["type"] in ("eval", "expert_failure")
+        )
+
+    assert outcomes(a) == outcomes(b)
+
+
+def expand_args(root: Path, ckpt: Path) -> list[str]:
+    return [
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={root}",
+        f"--policy.path={ckpt}",
+        "--strategy=adademo",
+        "--target_successes=2",
+        "--max_demos_per_task=4",
+        "--eval.batch_size=3",
+        "--commit_every=2",
+    ]
+
+
+def test_ray_gives_the_same_round_as_local(reach_push_dataset, ckpt, ray_address, tmp_path):
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    shutil.copytree(reach_push_dataset, local)
+    shutil.copytree(reach_push_dataset, remote)
+    run_cli("adademo-expand", *expand_args(local, ckpt))
+    run_cli("adademo-expand", *expand_args(remote, ckpt), *ray_flags(ray_address))
+    same_round(local, remote, 1)
+    assert len(read_episode_metadata(local)) > 6  # the round did add demos
+
+    # Uniform (fresh states, no policy) and task_only, likewise.
+    for strategy in (
+        ["--strategy=uniform", "--demos_per_task=2"],
+        ["--strategy=task_only", "--target_successes=1", "--plan_episodes_per_task=3"],
+    ):
+        run_cli("adademo-expand", *expand_args(local, ckpt), *strategy)
+        run_cli("adademo-expand", *expand_args(remote, ckpt), *strategy, *ray_flags(ray_address))
+    same_round(local, remote, 3)
+
+
+def test_fixed_set_evaluation_and_collection_are_the_same_with_any_number_of_workers(
+    ckpt, reach_push_dataset, ray_address, tmp_path
+):
+    outputs = {}
+    for name, flags in (
+        ("local", []),
+        ("ray1", ray_flags(ray_address, 1)),
+        ("ray2", ray_flags(ray_address, 2)),
+    ):
+        run_cli(
+            "adademo-eval",
+            f"--policy.path={ckpt}",
+            f"--dataset.root={reach_push_dataset}",
+            "--episodes_per_task=5",
+            "--eval.batch_size=2",
+            f"--output_dir={tmp_path / name}",
+            *flags,
+        )
+        outputs[name] = pd.read_parquet(tmp_path / name / "eval_episodes.parquet")
+    for name in ("ray1", "ray2"):
+        pd.testing.assert_frame_equal(outputs["local"], outputs[name])
+
+    roots = {}
+    for name, flags in (("local", []), ("ray2", ray_flags(ray_address, 2))):
+        roots[name] = tmp_path / f"collect_{name}"
+        run_cli(
+            "adademo-collect",
+            "--suite.tasks=reach-v3,push-v3,drawer-open-v3",
+            "--episodes_per_task=2",
+            "--dataset.repo_id=local/c",
+            f"--dataset.root={roots[name]}",
+            "--seed=5",
+            "--commit_every=1",
+            *flags,
+        )
+    ea, eb = read_episode_metadata(roots["local"]), read_episode_metadata(roots["ray2"])
+    assert (
+        list(ea.task) == ["reach-v3"] * 2 + ["push-v3"] * 2 + ["drawer-open-v3"] * 2
+    )  # suite order, as local
+    assert list(ea["adademo/seed"]) == list(eb["adademo/seed"])
+    fa, fb = frames_by_episode(roots["local"]), frames_by_episode(roots["ray2"])
+    assert all(np.array_equal(fa[k], fb[k]) for k in fa)
+
+
+def worker_pids() -> list[int]:
+    out = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True).stdout
+    return [int(line.split()[0]) for line in out.splitlines() if "ray::EpisodeWorker" in line]
+
+
+def wait_for(condition, what: str, proc: subprocess.Popen, timeout: float = 300) -> None:
+    deadline = time.time() + timeout
+    while not condition():
+        assert time.time() < deadline and proc.poll() is None, f"{what} did not happen"
+        time.sleep(0.1)
+
+
+def evaluations_so_far(root: Path) -> int:
+    journal = root / "meta" / "adademo" / "journal-round-001.jsonl"
+    return (
+        sum('"type": "eval"' in line for line in journal.read_text().splitlines()) if journal.exists() else 0
+    )
+
+
+def test_a_killed_worker_is_replaced_and_the_round_is_complete_and_the_same(
+    reach_push_dataset, ckpt, ray_address, tmp_path
+):
+    reference, faulty = tmp_path / "reference", tmp_path / "faulty"
+    shutil.copytree(reach_push_dataset, reference)
+    shutil.copytree(reach_push_dataset, faulty)
+    run_cli("adademo-expand", *expand_args(reference, ckpt))
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-expand"), *expand_args(faulty, ckpt), *ray_flags(ray_address)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    wait_for(lambda: evaluations_so_far(faulty) >= 1 and worker_pids(), "the first evaluations", proc)
+    victim = worker_pids()[0]
+    os.kill(victim, signal.SIGKILL)
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-3000:]
+    assert victim not in worker_pids()
+    same_round(reference, faulty, 1)  # nothing lost, nothing twice
+
+
+def test_a_killed_driver_resumes_from_the_journal_to_the_same_round(
+    reach_push_dataset, ckpt, ray_address, tmp_path
+):
+    reference, resumed = tmp_path / "reference", tmp_path / "resumed"
+    shutil.copytree(reach_push_dataset, reference)
+    shutil.copytree(reach_push_dataset, resumed)
+    run_cli("adademo-expand", *expand_args(reference, ckpt))
+    args = [*expand_args(resumed, ckpt), *ray_flags(ray_address)]
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-expand"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    wait_for(lambda: evaluations_so_far(resumed) >= 3, "three evaluations", proc)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not read_ledger(resumed)  # the round was cut short
+    run_cli("adademo-expand", *args)
+    same_round(reference, resumed, 1)
+    state = json.loads((resumed / "meta" / "info.json").read_text())
+    assert state["total_episodes"] == len(read_episode_metadata(reference))
