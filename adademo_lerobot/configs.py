@@ -73,10 +73,16 @@ class EvalCommandConfig:
 class ExpandConfig:
     dataset: DatasetArgs = field(default_factory=DatasetArgs)
     policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
-    # adademo (principles A+B) | uniform (the paper's baseline) | task_only (ablation A)
+    # adademo (principles A+B) | budgeted (A+B with a round budget) | uniform (the paper's baseline) |
+    # task_only (ablation A)
     strategy: str = "adademo"
     # E: evaluation successes per task that end a task's collection (adademo; task_only's allocation).
-    target_successes: int = 10
+    # Default 10; with --budget, picked so that the predicted total fits the budget.
+    target_successes: int | None = None
+    # B: demos in the round. budgeted: spent exactly; adademo/task_only: picks E; uniform: split evenly.
+    budget: int | None = None
+    # budgeted: weight of an earlier round's evaluation outcomes per round since (1: all count the same).
+    posterior_decay: float = 0.5
     # CAP: at most this many new demos per task in this round (the paper's per-round cap).
     max_demos_per_task: int = 50
     # N: new demos per task for `uniform`.

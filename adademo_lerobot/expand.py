@@ -10,6 +10,7 @@ kill between the ledger write and the journal's end is finished, never mistaken 
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from tqdm import tqdm
@@ -25,9 +26,12 @@ from adademo_lerobot.ledger import RoundJournal, append_ledger, ledger_rounds
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies import make_strategy, planned_demos
 from adademo_lerobot.strategies.base import RoundContext
+from adademo_lerobot.strategies.budgeted import failure_mean, pick_target_successes, prior_from_earlier_rounds
 from adademo_lerobot.strategies.task_only import estimate_success
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.tables import table
+
+DEFAULT_TARGET_SUCCESSES = 10
 
 
 def validate(cfg) -> None:
@@ -38,14 +42,45 @@ def validate(cfg) -> None:
         ("demos_per_task", cfg.demos_per_task),
         ("plan_episodes_per_task", cfg.plan_episodes_per_task),
     ):
-        if value < 1:
+        if value is not None and value < 1:
             raise AdaDemoError(f"--{flag} must be >= 1, got {value}")
+    if cfg.budget is not None and cfg.budget < 1:
+        raise AdaDemoError(f"--budget must be >= 1 (demonstrations in the round), got {cfg.budget}")
+    if cfg.budget is not None and cfg.target_successes is not None:
+        raise AdaDemoError(
+            f"--budget={cfg.budget} and --target_successes={cfg.target_successes} both set the round's size: "
+            "pass one (with --budget, E is picked to fit it)"
+        )
+    if cfg.strategy == "budgeted" and cfg.budget is None:
+        raise AdaDemoError("--strategy=budgeted needs --budget=B (demonstrations in the round)")
+    if not 0 < cfg.posterior_decay <= 1:
+        raise AdaDemoError(f"--posterior_decay must be in (0, 1], got {cfg.posterior_decay}")
     if cfg.max_eval_episodes_per_task is not None and cfg.max_eval_episodes_per_task < 1:
         raise AdaDemoError(f"--max_eval_episodes_per_task must be >= 1, got {cfg.max_eval_episodes_per_task}")
     if cfg.dataset.root is None:
         raise AdaDemoError("--dataset.root is required (an adademo dataset made by adademo-collect)")
     if not has_dataset(cfg.dataset.root):
         raise AdaDemoError(f"no LeRobot dataset at {cfg.dataset.root}; create one with adademo-collect")
+
+
+def target_successes_for(cfg, root: Path, suite, round_index: int) -> int:
+    """E: the flag, the default, or (with --budget, for adademo and task_only) the largest E whose predicted
+    total fits the budget, from each task's success estimate over the earlier rounds' evaluations."""
+    if cfg.target_successes is not None:
+        return cfg.target_successes
+    if cfg.budget is None or cfg.strategy not in ("adademo", "task_only"):
+        return DEFAULT_TARGET_SUCCESSES
+    rates = {
+        t: 1 - failure_mean(prior_from_earlier_rounds(root, round_index, t, cfg.posterior_decay))
+        for t in suite.tasks
+    }
+    target, plan = pick_target_successes(cfg.budget, rates, cfg.max_demos_per_task)
+    print(
+        f"budget {cfg.budget}: picked E={target} (predicted demos "
+        + ", ".join(f"{t} {n}" for t, n in plan.items())
+        + f"; total {sum(plan.values())})"
+    )
+    return target
 
 
 def next_round(root: Path) -> int:
@@ -171,15 +206,31 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
     )
     if round_index is None:
         round_index = next_round(root)
-    max_eval = cfg.max_eval_episodes_per_task or 2 * (cfg.target_successes + cfg.max_demos_per_task)
+    journal = RoundJournal(root, round_index)
+    started = journal.of_type(
+        "start"
+    )  # a resumed round keeps the E it picked (the estimate would now differ)
+    if (
+        started
+        and cfg.target_successes is None
+        and started[0].get("target_successes") is not None
+        and cfg.budget
+    ):
+        target = started[0]["target_successes"]
+    else:
+        target = target_successes_for(cfg, root, suite, round_index)
+    max_eval = cfg.max_eval_episodes_per_task or 2 * (target + cfg.max_demos_per_task)
     settings = {
-        "target_successes": cfg.target_successes,
+        "target_successes": target,
         "max_demos_per_task": cfg.max_demos_per_task,
         "demos_per_task": cfg.demos_per_task,
         "max_eval_episodes_per_task": max_eval,
         "plan_episodes_per_task": cfg.plan_episodes_per_task,
         "commit_every": cfg.commit_every,
         "policy_path": str(cfg.policy.path) if needs_policy else None,
+        "budget": cfg.budget,
+        "posterior_decay": cfg.posterior_decay,
+        "commit_by_task": not hasattr(strategy, "expand_round"),
     }
     expert = cfg.collector.expert_name(suite)
     if cfg.plan_only:
@@ -190,13 +241,14 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
     if round_index in ledger_rounds(root):
         print(f"round {round_index} is already complete (meta/adademo/rounds.jsonl)")
         return []
-    journal = RoundJournal(root, round_index)
     journal.start(
         {
             "strategy": cfg.strategy,
-            "target_successes": cfg.target_successes,
+            "target_successes": target,
             "max_demos_per_task": cfg.max_demos_per_task,
             "demos_per_task": cfg.demos_per_task,
+            "budget": cfg.budget,
+            "posterior_decay": cfg.posterior_decay,
             "plan_episodes_per_task": cfg.plan_episodes_per_task,
             "max_eval_episodes_per_task": max_eval,
             "seed": cfg.seed,
@@ -225,12 +277,20 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
         **settings,
     )
 
-    def expand_task(task: str) -> TaskRoundRecord:
-        record = strategy.expand_task(ctx, task)
-        bar.update(1)
-        return record
+    if hasattr(strategy, "expand_round"):  # decisions that span tasks: one loop over the whole round
+        started_at = time.perf_counter()
+        records = strategy.expand_round(ctx)
+        ctx.flush()
+        bar.update(len(suite.tasks))
+        share_round_time(records, time.perf_counter() - started_at, journal)
+    else:
 
-    records = ctx.run_tasks(expand_task)
+        def expand_task(task: str) -> TaskRoundRecord:
+            record = strategy.expand_task(ctx, task)
+            bar.update(1)
+            return record
+
+        records = ctx.run_tasks(expand_task)
     bar.close()
     for record in records:
         ctx.evaluation_cost(record.task, record)
@@ -242,6 +302,16 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
     print(format_round_table(records))
     print(f"round {round_index}: {sum(r.demos_added for r in records)} new episodes in {root}")
     return records
+
+
+def share_round_time(records: list[TaskRoundRecord], seconds: float, journal: RoundJournal) -> None:
+    """A round-wide loop journals its time per task in proportion to each task's env steps."""
+    steps = {
+        r.task: r.collection_env_steps + sum(e["steps"] for e in journal.evaluations(r.task).values())
+        for r in records
+    }
+    total = sum(steps.values()) or 1
+    journal.append(*({"type": "time", "task": t, "seconds": seconds * n / total} for t, n in steps.items()))
 
 
 def _after_ledger_written() -> None:

@@ -33,6 +33,7 @@ from adademo_lerobot.dataset.layout import (
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.ledger import RoundJournal, read_ledger
+from adademo_lerobot.tables import table
 
 log = logging.getLogger(__name__)
 
@@ -211,50 +212,59 @@ def adademo_card_section(root: str | Path, max_task_columns: int = MAX_TASK_COLU
         "",
     ]
     if len(tasks) <= max_task_columns:
+        rows = [
+            [
+                s.round,
+                _strategy_cell(s),
+                *(f"+{s.demos[t]} / {_sr(s.evals.get(t))}" for t in tasks),
+                s.total_after,
+            ]
+            for s in rounds
+        ]
         lines += [
             "Per task: demonstrations the round added / the policy's success rate on that round's evaluation "
             "episodes (`–`: the round evaluated no policy on that task).",
             "",
-            "| round | strategy | "
-            + " | ".join(f"{t}: demos / eval SR" for t in tasks)
-            + " | episodes after round |",
-            "| ---: | --- | " + " | ".join("---" for _ in tasks) + " | ---: |",
+            table(
+                ["round", "strategy", *(f"{t}: demos / eval SR" for t in tasks), "episodes after round"],
+                rows,
+                aligned=False,
+                right=(0, len(tasks) + 2),
+            ),
         ]
-        for s in rounds:
-            cells = [f"+{s.demos[t]} / {_sr(s.evals.get(t))}" for t in tasks]
-            lines.append(
-                f"| {s.round} | {_strategy_cell(s)} | " + " | ".join(cells) + f" | {s.total_after} |"
-            )
     else:
-        lines += [
-            "| round | strategy | demos added | eval SR (all tasks) | episodes after round |",
-            "| ---: | --- | ---: | --- | ---: |",
-        ]
+        rows = []
         for s in rounds:
             total = (sum(v[0] for v in s.evals.values()), sum(v[1] for v in s.evals.values()))
-            lines.append(
-                f"| {s.round} | {_strategy_cell(s)} | +{sum(s.demos.values())} | "
-                f"{_sr(total if total[1] else None)} | {s.total_after} |"
+            rows.append(
+                [
+                    s.round,
+                    _strategy_cell(s),
+                    f"+{sum(s.demos.values())}",
+                    _sr(total if total[1] else None),
+                    s.total_after,
+                ]
             )
+        per_task = [[s.round, t, f"+{s.demos[t]}", _sr(s.evals.get(t))] for s in rounds for t in tasks]
         lines += [
+            table(
+                ["round", "strategy", "demos added", "eval SR (all tasks)", "episodes after round"],
+                rows,
+                aligned=False,
+                right=(0, 2, 4),
+            ),
             "",
             "Per task (`–`: no policy evaluation on that task in that round):",
             "",
-            "| round | task | demos added | eval SR |",
-            "| ---: | --- | ---: | --- |",
+            table(["round", "task", "demos added", "eval SR"], per_task, aligned=False, right=(0, 2)),
         ]
-        for s in rounds:
-            for t in tasks:
-                lines.append(f"| {s.round} | {t} | +{s.demos[t]} | {_sr(s.evals.get(t))} |")
     lines += [
         "",
         "#### Per-episode columns",
         "",
         "`meta/episodes` carries these columns besides LeRobot's own:",
         "",
-        "| column | meaning |",
-        "| --- | --- |",
-        *[f"| `{c}` | {d} |" for c, d in COLUMN_DESCRIPTIONS.items()],
+        table(["column", "meaning"], [[f"`{c}`", d] for c, d in COLUMN_DESCRIPTIONS.items()], aligned=False),
         "",
         "#### AdaDemo files",
         "",

@@ -21,6 +21,7 @@ from adademo_lerobot.configs import ReportConfig  # noqa: E402
 from adademo_lerobot.dataset.metadata import read_episode_metadata  # noqa: E402
 from adademo_lerobot.errors import AdaDemoError  # noqa: E402
 from adademo_lerobot.ledger import read_ledger  # noqa: E402
+from adademo_lerobot.tables import table  # noqa: E402
 
 
 @dataclass
@@ -69,34 +70,79 @@ def _pct(x: float) -> str:
 
 def markdown_tables(run: RunResults) -> str:
     rounds = list(run.success.columns)
-    head = "| task | " + " | ".join(f"round {r}: SR % (demos)" for r in rounds) + " |"
-    lines = [f"### {run.name} — {run.label}", "", head, "|" + " --- |" * (len(rounds) + 1)]
-    for t in run.tasks:
-        lines.append(
-            f"| {t} | "
-            + " | ".join(f"{_pct(run.success.loc[t, r])} ({run.demos.loc[t, r]})" for r in rounds)
-            + " |"
-        )
-    lines.append(
-        "| **average** | "
-        + " | ".join(f"**{_pct(run.success.loc['average', r])}** ({run.demos[r].mean():.1f})" for r in rounds)
-        + " |"
+    rows = [
+        [t, *(f"{_pct(run.success.loc[t, r])} ({run.demos.loc[t, r]})" for r in rounds)] for t in run.tasks
+    ]
+    rows.append(
+        [
+            "**average**",
+            *(f"**{_pct(run.success.loc['average', r])}** ({run.demos[r].mean():.1f})" for r in rounds),
+        ]
     )
+    header = ["task", *(f"round {r}: SR % (demos)" for r in rounds)]
+    lines = [f"### {run.name} — {run.label}", "", table(header, rows, aligned=False)]
     if len(run.ledger):
+        rows = [
+            [
+                r,
+                g.strategy.iloc[0],
+                g.demos_added.sum(),
+                g.eval_episodes.sum(),
+                g.eval_env_steps.sum(),
+                g.collection_env_steps.sum(),
+                g.expert_failures.sum(),
+                int(g.cap_hit.sum()),
+            ]
+            for r, g in run.ledger.groupby("round")
+        ]
         lines += [
             "",
             "Expansion rounds (from the ledger):",
             "",
-            "| round | strategy | demos added | eval episodes | eval env steps | collection env steps | expert failures | tasks at CAP |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+            table(
+                [
+                    "round",
+                    "strategy",
+                    "demos added",
+                    "eval episodes",
+                    "eval env steps",
+                    "collection env steps",
+                    "expert failures",
+                    "tasks at CAP",
+                ],
+                rows,
+                aligned=False,
+            ),
         ]
-        for r, g in run.ledger.groupby("round"):
-            lines.append(
-                f"| {r} | {g.strategy.iloc[0]} | {g.demos_added.sum()} | {g.eval_episodes.sum()} | "
-                f"{g.eval_env_steps.sum()} | {g.collection_env_steps.sum()} | {g.expert_failures.sum()} | "
-                f"{int(g.cap_hit.sum())} |"
-            )
+        lines += allocation_lines(run.ledger)
     return "\n".join(lines)
+
+
+def allocation_lines(ledger: pd.DataFrame) -> list[str]:
+    """Per round and task, what was planned and what was done, and (budgeted) the success estimate before and
+    after the round's evaluations."""
+    rows = []
+    for _, r in ledger.iterrows():
+        extra = r.get("extra") if isinstance(r.get("extra"), dict) else {}
+        estimate = ""
+        if extra.get("prior") and extra.get("posterior"):
+            (a0, b0), (a1, b1) = extra["prior"], extra["posterior"]
+            estimate = f"{100 * a0 / (a0 + b0):.0f} -> {100 * a1 / (a1 + b1):.0f}"
+        planned = "" if pd.isna(r.get("planned_demos")) else int(r["planned_demos"])
+        rows.append([r["round"], r["task"], planned, r["demos_added"], r["eval_episodes"], estimate])
+    if not any(row[2] != "" or row[5] for row in rows):
+        return []
+    return [
+        "",
+        "Allocation per round (planned: the budget's first split or ablation A's N_k; success estimate: the "
+        "posterior mean before -> after the round's evaluations, %):",
+        "",
+        table(
+            ["round", "task", "planned demos", "demos", "eval episodes", "success estimate"],
+            rows,
+            aligned=False,
+        ),
+    ]
 
 
 def plot_success_vs_demos(runs: list[RunResults], path: Path) -> None:
@@ -182,14 +228,19 @@ def write_report(run_dirs: list[Path], out_dir: Path) -> Path:
     plot_eval_cost(runs, out_dir / "eval_cost.png")
     sections = ["# AdaDemo report", "", "![success vs demos](success_vs_demos.png)", ""]
     if len(runs) > 1:
-        sections += ["| run | strategy | final avg SR % | avg demos per task |", "| --- | --- | --- | --- |"]
-        for run in runs:
-            last = run.success.columns[-1]
-            sections.append(
-                f"| {run.name} | {run.label} | {_pct(run.success.loc['average', last])} | "
-                f"{run.demos[last].mean():.1f} |"
-            )
-        sections.append("")
+        rows = [
+            [
+                run.name,
+                run.label,
+                _pct(run.success.loc["average", run.success.columns[-1]]),
+                f"{run.demos[run.success.columns[-1]].mean():.1f}",
+            ]
+            for run in runs
+        ]
+        sections += [
+            table(["run", "strategy", "final avg SR %", "avg demos per task"], rows, aligned=False),
+            "",
+        ]
     for run in runs:
         plot_allocation(run, out_dir / f"allocation_{run.name}.png")
         plot_per_task_success(run, out_dir / f"success_{run.name}.png")

@@ -42,6 +42,7 @@ from adademo_lerobot.files import atomic_write_text
 from adademo_lerobot.fixed_set import evaluate_fixed_set
 from adademo_lerobot.ledger import ledger_rounds
 from adademo_lerobot.policy import check_policy
+from adademo_lerobot.samplers import make_sampling_scheme
 from adademo_lerobot.strategies import STRATEGIES
 from adademo_lerobot.suites import SuiteConfig, make_suite
 from adademo_lerobot.train import AdaDemoTrainConfig, TrainDatasetConfig, find_last_checkpoint, train
@@ -54,6 +55,8 @@ class RunTrainArgs:
     policy: PreTrainedConfig | None = None
     sampler: str = "trajectory"
     min_task_weight: float = 0.0
+    # `tempered` sampler: a task's share is proportional to its trajectories ** sampler_alpha.
+    sampler_alpha: float = 1.0
     batch_size: int = 32
     # Steps of the round-0 training.
     steps: int = 2000
@@ -89,9 +92,14 @@ class RunConfig:
     strategy: str = "adademo"
     rounds: int = 2
     # Per round i = 1..R (the last value repeats if the list is shorter): E_i, CAP_i and Uniform's N_i.
-    target_successes: list[int] = field(default_factory=lambda: [10])
+    # E_i (default 10); leave empty with `budget`, which then picks E (adademo, task_only).
+    target_successes: list[int] = field(default_factory=list)
     max_demos_per_task: list[int] = field(default_factory=lambda: [50])
     demos_per_task: list[int] = field(default_factory=lambda: [10])
+    # B_i: demos per round (the budgeted strategy spends exactly B_i; uniform splits it evenly).
+    budget: list[int] = field(default_factory=list)
+    # budgeted: weight of an earlier round's evaluation outcomes per round since.
+    posterior_decay: float = 0.5
     plan_episodes_per_task: int = 20
     seed: int = 0
     train: RunTrainArgs = field(default_factory=RunTrainArgs)
@@ -118,10 +126,18 @@ def validate(cfg: RunConfig) -> None:
         raise AdaDemoError(f"unknown --strategy={cfg.strategy!r}; choose one of {', '.join(STRATEGIES)}")
     if cfg.rounds < 0 or cfg.initial_demos_per_task < 1:
         raise AdaDemoError("--rounds must be >= 0 and --initial_demos_per_task >= 1")
-    for name in ("target_successes", "max_demos_per_task", "demos_per_task"):
+    for name in ("target_successes", "max_demos_per_task", "demos_per_task", "budget"):
         values = getattr(cfg, name)
-        if not values or min(values) < 1:
+        optional = name in ("target_successes", "budget")
+        if (not values and not optional) or (values and min(values) < 1):
             raise AdaDemoError(f"--{name} needs one or more values >= 1 (one per round), got {values}")
+    if cfg.budget and cfg.target_successes:
+        raise AdaDemoError(
+            f"--budget={cfg.budget} and --target_successes={cfg.target_successes} both set the rounds' "
+            "size: pass one (with a budget, E is picked to fit it)"
+        )
+    if cfg.strategy == "budgeted" and not cfg.budget:
+        raise AdaDemoError("--strategy=budgeted needs --budget=[B1,B2,...] (demonstrations per round)")
     if cfg.train.policy is None:
         raise AdaDemoError("the recipe needs train.policy (e.g. --train.policy.type=act)")
     if cfg.train.mode not in ("scratch", "finetune"):
@@ -183,19 +199,17 @@ FIXED_SETTINGS = (
     "target_successes",
     "max_demos_per_task",
     "demos_per_task",
+    "budget",
+    "sampler_alpha",
     "sampler",
     "policy_type",
 )
 
 
-def run(cfg: RunConfig) -> Path:
-    validate(cfg)
-    run_dir = Path(cfg.run_dir)
-    suite = make_suite(cfg.suite)
-    cfg.collector.validate(suite)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    settings = {
-        "suite": suite.config.to_dict(),
+def run_settings(cfg: RunConfig, suite: dict) -> dict:
+    """What defines the run, kept in run_state.json (FIXED_SETTINGS among them must not change on resume)."""
+    return {
+        "suite": suite,
         "strategy": cfg.strategy,
         "rounds": cfg.rounds,
         "initial_demos_per_task": cfg.initial_demos_per_task,
@@ -204,12 +218,25 @@ def run(cfg: RunConfig) -> Path:
         "target_successes": cfg.target_successes,
         "max_demos_per_task": cfg.max_demos_per_task,
         "demos_per_task": cfg.demos_per_task,
+        "budget": cfg.budget,
         "sampler": cfg.train.sampler,
         "policy_type": cfg.train.policy.type,
         "train_mode": cfg.train.mode,
         "min_task_weight": cfg.train.min_task_weight,
+        "sampler_alpha": cfg.train.sampler_alpha,
     }
-    state = RunState(run_dir, settings)
+
+
+def run(cfg: RunConfig) -> Path:
+    validate(cfg)
+    run_dir = Path(cfg.run_dir)
+    suite = make_suite(cfg.suite)
+    cfg.collector.validate(suite)
+    make_sampling_scheme(
+        cfg.train.sampler, cfg.train.min_task_weight, len(suite.tasks), cfg.train.sampler_alpha
+    )
+    run_dir.mkdir(parents=True, exist_ok=True)
+    state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()))
     dataset_root = run_dir / "dataset"
     repo_id = f"local/{run_dir.name}"
     episodes = Episodes(cfg, suite)  # the executor, made when a stage first needs it, kept for the whole run
@@ -316,6 +343,7 @@ def train_round(
         save_freq=min(cfg.train.save_freq, steps),
         sampler=cfg.train.sampler,
         min_task_weight=cfg.train.min_task_weight,
+        sampler_alpha=cfg.train.sampler_alpha,
         torch_threads=cfg.train.torch_threads,
         in_memory=cfg.train.in_memory,
     )
@@ -355,7 +383,9 @@ def expand_round(
         dataset=DatasetArgs(repo_id=repo_id, root=str(dataset_root)),
         policy=PolicyPathArgs(path=str(checkpoint)),
         strategy=cfg.strategy,
-        target_successes=per_round(cfg.target_successes, i),
+        target_successes=per_round(cfg.target_successes, i) if cfg.target_successes else None,
+        budget=per_round(cfg.budget, i) if cfg.budget else None,
+        posterior_decay=cfg.posterior_decay,
         max_demos_per_task=per_round(cfg.max_demos_per_task, i),
         demos_per_task=per_round(cfg.demos_per_task, i),
         plan_episodes_per_task=cfg.plan_episodes_per_task,

@@ -46,10 +46,12 @@ class TrainDatasetConfig(DatasetConfig):
 @dataclass
 class AdaDemoTrainConfig(TrainPipelineConfig):
     dataset: TrainDatasetConfig
-    # trajectory (AdaDemo C) | task (uniform over tasks) | frame (LeRobot's default: uniform over frames)
+    # trajectory (AdaDemo C) | task (uniform over tasks) | tempered (n_k ** sampler_alpha) | frame (LeRobot's default)
     sampler: str = "trajectory"
-    # Minimum share of every task under `trajectory`, in [0, 1/num_tasks].
+    # Minimum share of every task under `trajectory` / `tempered`, in [0, 1/num_tasks].
     min_task_weight: float = 0.0
+    # `tempered`: a task's share is proportional to (its trajectories) ** sampler_alpha (1: trajectory, 0: task).
+    sampler_alpha: float = 1.0
     # torch intra-op threads (2-core default; lower it when env worker processes run beside training).
     torch_threads: int = 2
     # Serve batches from tensors held in memory (datasets without camera frames); false: LeRobot's loading.
@@ -192,7 +194,9 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     suite_cfg = try_load_suite_config(
         root
     )  # training needs only LeRobot's format; the suite is recorded if known
-    scheme = make_sampling_scheme(cfg.sampler, cfg.min_task_weight, episodes["task"].nunique())
+    scheme = make_sampling_scheme(
+        cfg.sampler, cfg.min_task_weight, episodes["task"].nunique(), cfg.sampler_alpha
+    )
     if cfg.seed is not None:
         set_seed(cfg.seed)  # before the model is built: the same seed gives the same initial weights
 
@@ -285,6 +289,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     info = {
         "sampler": cfg.sampler,
         "min_task_weight": cfg.min_task_weight,
+        "sampler_alpha": cfg.sampler_alpha,
         "episodes": int(len(episodes)),
         "frames": int(dataset.num_frames),
         "episodes_per_task": {k: int(v) for k, v in episodes["task"].value_counts().items()},

@@ -1,16 +1,23 @@
-"""AdaDemo's data efficiency against Uniform and the ablations on MetaWorld (paper Table I, Fig. 1, Table III).
+"""Data efficiency on MetaWorld: Uniform against AdaDemo (the paper's), AdaDemo with the tempered sampler and the
+budgeted strategy, at equal demonstrations per round, with the noise of the measurement measured first.
 
-    python benchmarks/data_efficiency.py --seeds 0 1 [--out ~/adademo-bench] [--aggregate_only] [--uniform_3x]
+    python benchmarks/data_efficiency.py select              # round-0 table of candidate tasks -> the task set
+    python benchmarks/data_efficiency.py noise               # noise floor: one round trained twice, two seeds
+    python benchmarks/data_efficiency.py arms --seeds 0 1 2 [--arms uniform adademo ...] [--torch_threads 1]
+    python benchmarks/data_efficiency.py report --seeds 0 1 2
 
-Per seed: a shared round 0 (`recipes/adademo.yaml` with --rounds=0: 10 scripted demos per task, ACT, fixed
-evaluation set of 50 initial states per task), then the four arms continue from copies of it, each for 3 rounds:
-adademo (A+B+C), ablation_ab (A+B), ablation_a (A), and uniform, whose per-round N_i is AdaDemo's average number of
-new demos per task in that round rounded up (the paper gives Uniform an equal or slightly larger budget). Every
-run is an `adademo-run` folder, so the whole benchmark resumes after an interruption (rerun the same command).
-With --uniform_3x a fifth arm gives Uniform three times AdaDemo's per-round budget: the paper's Fig. 1 compares
-against a Uniform that kept collecting until it plateaued, which an equal budget cannot show.
-Round 0 needs no sampler choice: with equal demos per task, trajectory- and task-uniform sampling coincide.
+Every run is an `adademo-run` folder under --out (default ~/adademo-bench), so every phase resumes after an
+interruption (rerun the same command) and two drivers can share a machine on disjoint arms (give each
+`--torch_threads 1`). The recipe is `recipes/budgeted.yaml`: its tasks, budgets, CAPs, model and training
+regime are the ones this benchmark chose (select, noise); the arms differ only in strategy and sampler:
 
+    uniform            --strategy=uniform   (the budget split evenly: exactly B_i demos per round)
+    adademo            --strategy=adademo   (the paper's: E picked by --budget, at most B_i), trajectory sampler
+    adademo_tempered   --strategy=adademo   + --train.sampler=tempered --train.sampler_alpha=0.5
+    budgeted_tempered  --strategy=budgeted  (exactly B_i) + tempered sampler
+
+Per seed all arms branch from one shared round 0 (dataset, policy, evaluation), train each round from scratch with
+the same training seed, and are evaluated on the same fixed initial states (50 per task): comparisons are paired.
 Writes benchmarks/results/data_efficiency.md and data_efficiency.png.
 """
 
@@ -18,212 +25,251 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
+import os
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from _common import BIN, RESULTS, ROOT, machine_line
 
-ARMS = {  # arm -> recipe (strategy + sampler)
-    "adademo": "adademo.yaml",
-    "ablation_ab": "ablation_ab.yaml",
-    "ablation_a": "ablation_a.yaml",
-    "uniform": "uniform.yaml",
-    "uniform_3x": "uniform.yaml",  # optional (--uniform_3x)
+RECIPE = ROOT / "recipes" / "budgeted.yaml"
+CANDIDATES = (
+    "reach-v3,push-v3,pick-place-v3,door-open-v3,drawer-open-v3,drawer-close-v3,button-press-topdown-v3,"
+    "peg-insert-side-v3,window-open-v3,window-close-v3,button-press-v3,coffee-button-v3,plate-slide-v3,"
+    "handle-press-v3,faucet-open-v3,sweep-into-v3"
+)
+ARMS = {
+    "uniform": ["--strategy=uniform", "--train.sampler=trajectory"],
+    "adademo": ["--strategy=adademo", "--train.sampler=trajectory"],
+    "adademo_tempered": ["--strategy=adademo", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
+    "budgeted_tempered": ["--strategy=budgeted", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
 }
-MAIN_ARMS = ["adademo", "ablation_ab", "ablation_a", "uniform"]
 LABELS = {
-    "adademo": "AdaDemo (A+B+C)",
-    "ablation_ab": "A+B",
-    "ablation_a": "A",
     "uniform": "Uniform",
-    "uniform_3x": "Uniform, 3x budget",
+    "adademo": "AdaDemo (paper: E from the budget, trajectory sampler)",
+    "adademo_tempered": "AdaDemo + tempered sampler (alpha 0.5)",
+    "budgeted_tempered": "Budgeted + tempered sampler (alpha 0.5)",
 }
-BUDGET_FACTOR = {"uniform": 1, "uniform_3x": 3}  # x AdaDemo's mean new demos per task, per round
+TORCH_THREADS: list[str] = []
 
 
-TORCH_THREADS: list[str] = []  # --torch_threads: set when two drivers share the cores
-
-
-def adademo_run(recipe: str, run_dir: Path, seed: int, *extra: str) -> None:
+def adademo_run(run_dir: Path, *flags: str) -> None:
     cmd = [
         str(BIN / "adademo-run"),
-        f"--config_path={ROOT / 'recipes' / recipe}",
+        f"--config_path={RECIPE}",
         f"--run_dir={run_dir}",
-        f"--seed={seed}",
-        f"--train.seed={1000 + seed}",
         *TORCH_THREADS,
-        *extra,
+        *flags,
     ]
     print("$", " ".join(cmd), flush=True)
-    log = run_dir.parent / f"{run_dir.name}.log"
     run_dir.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "a") as f:
-        if subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT).returncode != 0:
-            sys.exit(f"{run_dir} failed: see {log}")
+    with open(run_dir.parent / f"{run_dir.name}.log", "a") as log:
+        if subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode != 0:
+            sys.exit(f"{run_dir} failed: see {run_dir.parent / f'{run_dir.name}.log'}")
 
 
-def branch_from_base(base: Path, arm_dir: Path, recipe: str, extra: list[str]) -> None:
-    """Start an arm from a copy of the shared round 0 (dataset, checkpoint, evaluation)."""
+def seed_flags(seed: int) -> list[str]:
+    return [f"--seed={seed}", f"--train.seed={1000 + seed}"]
+
+
+def branch_from_base(base: Path, arm_dir: Path, flags: list[str]) -> None:
+    """An arm starts from a copy of the seed's shared round 0 (dataset, checkpoint, evaluation)."""
     if arm_dir.exists():
         return
+    from adademo_lerobot.cli import parse_config
+    from adademo_lerobot.run import RunConfig, run_settings
+
     tmp = arm_dir.with_name(arm_dir.name + ".copying")
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(base, tmp, ignore=shutil.ignore_patterns("report"))
     state = json.loads((tmp / "run_state.json").read_text())
-    from adademo_lerobot.cli import parse_config
-    from adademo_lerobot.run import RunConfig
-
     cfg = parse_config(
-        RunConfig, [f"--config_path={ROOT / 'recipes' / recipe}", f"--run_dir={arm_dir}", *extra]
+        RunConfig, [f"--config_path={RECIPE}", f"--run_dir={arm_dir}", *flags], policy_types=True
     )
-    state["settings"].update(
-        {
-            "strategy": cfg.strategy,
-            "sampler": cfg.train.sampler,
-            "rounds": cfg.rounds,
-            "target_successes": cfg.target_successes,
-            "max_demos_per_task": cfg.max_demos_per_task,
-            "demos_per_task": cfg.demos_per_task,
-            "min_task_weight": cfg.train.min_task_weight,
-            "train_mode": cfg.train.mode,
-        }
-    )
+    state["settings"].update(run_settings(cfg, state["settings"]["suite"]))
     state["done"] = {k: v for k, v in state["done"].items() if k in ("collect", "train-0", "eval-0")}
+    train0 = state["done"]["train-0"]
+    train0["result"] = train0["result"].replace(str(base.resolve()), str(arm_dir.resolve()))
     (tmp / "run_state.json").write_text(json.dumps(state, indent=2))
     tmp.rename(arm_dir)
 
 
-def uniform_budget(adademo_dir: Path, rounds: int, factor: int) -> list[int]:
-    from adademo_lerobot.ledger import read_ledger
+def eval_table(run_dir: Path, round_index: int) -> dict[str, float]:
+    summary = json.loads((run_dir / "eval" / f"round-{round_index:03d}" / "eval_summary.json").read_text())
+    return {row["task"]: row["success_rate"] for row in summary["per_task"]}
 
-    ledger = pd.DataFrame(read_ledger(adademo_dir / "dataset"))
-    if ledger.empty or not set(range(1, rounds + 1)) <= set(ledger["round"]):
-        sys.exit(
-            f"{adademo_dir} has not finished its {rounds} rounds: Uniform's budget follows AdaDemo's (run it first)"
+
+def phase_select(out: Path) -> None:
+    """Round 0 of a policy trained on the candidate tasks: which start between 20 % and 70 %."""
+    run_dir = out / "select"
+    adademo_run(run_dir, f"--suite.tasks={CANDIDATES}", "--rounds=0", *seed_flags(0))
+    rates = eval_table(run_dir, 0)
+    lines = [f"| {t} | {100 * sr:.0f} |" for t, sr in rates.items() if t != "average"]
+    (out / "select.md").write_text("| task | round-0 SR % |\n| --- | --- |\n" + "\n".join(lines) + "\n")
+    print((out / "select.md").read_text())
+
+
+def phase_noise(out: Path) -> None:
+    """The same round trained twice with different training seeds, on unchanged data: how far the average moves.
+    Round 0 of seed 0 with training seeds 1000 (the base) and 2000, and a uniform round 1 likewise."""
+    base = out / "seed0" / "base"
+    adademo_run(base, "--rounds=0", *seed_flags(0))
+    twin = out / "noise" / "base_trainseed2000"
+    adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000")
+    rows = []
+    for name, a, b in (("round 0", base, twin),):
+        ra, rb = eval_table(a, 0), eval_table(b, 0)
+        tasks = [t for t in ra if t != "average"]
+        rows.append(
+            (name, 100 * ra["average"], 100 * rb["average"], max(abs(100 * (ra[t] - rb[t])) for t in tasks))
         )
-    return [math.ceil(factor * ledger[ledger["round"] == r].demos_added.mean()) for r in range(1, rounds + 1)]
+    lines = [
+        "| trained | avg SR % (train seed 1000) | avg SR % (train seed 2000) | largest task difference |",
+        "| --- | --- | --- | --- |",
+        *[f"| {n} | {x:.1f} | {y:.1f} | {d:.0f} |" for n, x, y, d in rows],
+    ]
+    (out / "noise.md").write_text("\n".join(lines) + "\n")
+    print((out / "noise.md").read_text())
 
 
-def run_seed(out: Path, seed: int, arms: list[str]) -> None:
-    base = out / f"seed{seed}" / "base"
-    adademo_run("adademo.yaml", base, seed, "--rounds=0")
-    for arm in arms:
-        arm_dir = out / f"seed{seed}" / arm
-        extra = []
-        if arm in BUDGET_FACTOR:
-            budget = uniform_budget(out / f"seed{seed}" / "adademo", 3, BUDGET_FACTOR[arm])
-            extra.append(f"--demos_per_task=[{','.join(map(str, budget))}]")
-        branch_from_base(base, arm_dir, ARMS[arm], extra)
-        adademo_run(ARMS[arm], arm_dir, seed, *extra)
+def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
+    for seed in seeds:
+        base = out / f"seed{seed}" / "base"
+        adademo_run(base, "--rounds=0", *seed_flags(seed))
+        for arm in arms:
+            arm_dir = out / f"seed{seed}" / arm
+            flags = [*ARMS[arm], *seed_flags(seed)]
+            branch_from_base(base, arm_dir, flags)
+            adademo_run(arm_dir, *flags)
 
 
 def demos_to_reach(x: np.ndarray, y: np.ndarray, target: float) -> float | None:
-    """Average demos per task at which the curve (x, y) first reaches `target`, interpolated linearly."""
+    """Added demos per task at which the curve (x, y) first reaches `target`, interpolated linearly."""
     if y[0] >= target:
         return float(x[0])
     for k in range(1, len(x)):
         if y[k] >= target:
-            frac = (target - y[k - 1]) / (y[k] - y[k - 1])
-            return float(x[k - 1] + frac * (x[k] - x[k - 1]))
+            return float(x[k - 1] + (target - y[k - 1]) / (y[k] - y[k - 1]) * (x[k] - x[k - 1]))
     return None
 
 
-def aggregate(out: Path, seeds: list[int]) -> None:
+def phase_report(out: Path, seeds: list[int]) -> None:
+    from adademo_lerobot.ledger import read_ledger
     from adademo_lerobot.report import load_run
 
     runs = {
         (arm, s): load_run(out / f"seed{s}" / arm)
         for arm in ARMS
         for s in seeds
-        if (out / f"seed{s}" / arm / "eval").exists()
+        if (out / f"seed{s}" / arm / "eval" / "round-003" / "eval_summary.json").exists()
     }
-    done = {
-        arm: [s for s in seeds if (arm, s) in runs and len(runs[(arm, s)].success.columns) == 4]
-        for arm in ARMS
-    }
-    complete = [s for s in seeds if all(s in done[arm] for arm in MAIN_ARMS)]
+    complete = [s for s in seeds if all((arm, s) in runs for arm in ARMS)]
     if not complete:
-        sys.exit("no seed has all four arms through round 3 yet")
-    arms = MAIN_ARMS + [arm for arm in ARMS if arm not in MAIN_ARMS and done[arm]]
-    arm_seeds = {arm: complete if arm in MAIN_ARMS else done[arm] for arm in arms}
-    tasks = runs[("adademo", complete[0])].tasks
-    rows, curves = [], {}
-    for arm in arms:
-        sr = np.stack(
-            [runs[(arm, s)].success.loc[tasks].to_numpy() for s in arm_seeds[arm]]
-        )  # seed x task x round
-        demos = np.stack([runs[(arm, s)].demos.loc[tasks].to_numpy() for s in arm_seeds[arm]])
-        curves[arm] = (demos.mean(axis=(0, 1)), sr.mean(axis=1).mean(axis=0), sr.mean(axis=1).std(axis=0))
-        for t, task in enumerate(tasks + ["average"]):
-            vals = sr[:, t] if t < len(tasks) else sr.mean(axis=1)
-            d = demos[:, t] if t < len(tasks) else demos.mean(axis=1)
-            rows.append(
-                {
-                    "arm": arm,
-                    "task": task,
-                    **{
-                        f"r{r}": f"{100 * vals[:, r].mean():.0f} ± {100 * vals[:, r].std():.0f} ({d[:, r].mean():.0f})"
-                        for r in range(4)
-                    },
-                }
-            )
-    ax_, ay, _ = curves["adademo"]
-    headlines = []
-    # Headline 1: demos AdaDemo needs to reach a Uniform arm's final average SR (interpolated on AdaDemo's curve).
-    for arm in [a for a in arms if a in BUDGET_FACTOR]:
-        ux, uy, _ = curves[arm]
-        reached = demos_to_reach(ax_, ay, uy[-1])
-        headlines.append(
-            f"- {LABELS[arm]} (seeds {arm_seeds[arm]}): final average SR {100 * uy[-1]:.1f}% with "
-            f"{ux[-1]:.1f} demos per task. "
-            + (
-                f"AdaDemo reaches it with {reached:.1f} demos per task: **{reached / ux[-1]:.2f}x** Uniform's demos "
-                f"(goal <= 1/3; the shared round 0 alone is {ax_[0] / ux[-1]:.2f}x)."
-                if reached is not None
-                else f"AdaDemo does not reach it within its {ax_[-1]:.1f} demos per task (goal: <= 1/3 of Uniform's)."
-            )
-        )
-    # Headline 2: SR difference at (about) equal budget after round 3.
-    ux, uy, _ = curves["uniform"]
-    diff = 100 * (ay[-1] - uy[-1])
-    headlines.append(
-        f"- After round 3 at about equal budget: AdaDemo {100 * ay[-1]:.1f}% with {ax_[-1]:.1f} demos per "
-        f"task vs Uniform {100 * uy[-1]:.1f}% with {ux[-1]:.1f}: **{diff:+.1f} points** (goal >= +5)."
-    )
-    plot(curves, RESULTS / "data_efficiency.png")
-    table = pd.DataFrame(rows)
-    flags = " --uniform_3x" if "uniform_3x" in arms else ""
+        sys.exit("no seed has every arm through round 3 yet")
+    tasks = runs[("uniform", complete[0])].tasks
+    sr = {
+        arm: np.stack([runs[(arm, s)].success.loc[tasks].to_numpy() for s in complete]) for arm in ARMS
+    }  # s,t,r
+    demos = {arm: np.stack([runs[(arm, s)].demos.loc[tasks].to_numpy() for s in complete]) for arm in ARMS}
+    added = {
+        arm: (demos[arm] - demos[arm][:, :, :1]).mean(axis=1).mean(axis=0) for arm in ARMS
+    }  # per task, by round
+    avg = {arm: sr[arm].mean(axis=1) for arm in ARMS}  # seed x round
+    episodes = {}  # demos + evaluation episodes (all run, speculative ones included), per task, cumulative
+    for arm in ARMS:
+        totals = []
+        for s in complete:
+            ledger = pd.DataFrame(read_ledger(out / f"seed{s}" / arm / "dataset"))
+            per_round = [
+                (
+                    ledger[ledger["round"] == r].demos_added.sum()
+                    + ledger[ledger["round"] == r].eval_episodes_run.sum()
+                )
+                / len(tasks)
+                for r in (1, 2, 3)
+            ]
+            totals.append(np.cumsum([0, *per_round]))
+        episodes[arm] = np.mean(totals, axis=0)
+
     lines = [
-        "# Data efficiency on MetaWorld: AdaDemo vs Uniform and the ablations",
+        "# Data efficiency on MetaWorld: Uniform, AdaDemo, AdaDemo + tempered sampler, budgeted",
         "",
-        f"Command: `python benchmarks/data_efficiency.py --seeds {' '.join(map(str, seeds))}{flags}`; {machine_line()}.",
-        f"Seeds with the four main arms complete: {complete}. Tasks: {', '.join(tasks)}. Recipes: `recipes/{{adademo,"
-        "ablation_ab,ablation_a,uniform}.yaml` (small state ACT, 10 initial demos per task, 3 rounds, E = 5/10/20,",
-        "CAP = 20/40/80, fine-tuning 800 steps per round), evaluated on the same 50 fixed initial states per task every",
-        "round. Uniform's N_i = AdaDemo's mean new demos per task in round i, rounded up"
-        + (" (x3 for the 3x arm)." if "uniform_3x" in arms else "."),
+        f"Command: `python benchmarks/data_efficiency.py arms --seeds {' '.join(map(str, seeds))}` then `report`; "
+        f"{machine_line()}.",
+        f"Seeds complete: {complete}. Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}); arms differ only "
+        "in strategy and sampler (see the script's docstring). Success on the same 50 fixed initial states per task "
+        "every round; mean ± std over seeds; in brackets the demos per task after the round.",
         "",
-        "Success rate % (mean ± std over seeds) and, in brackets, demos per task after each round:",
-        "",
-        "| arm | task | " + " | ".join(f"round {r}" for r in range(4)) + " |",
-        "| --- | --- |" + " --- |" * 4,
-        *[
-            f"| {LABELS[row.arm]} | {row.task} | "
-            + " | ".join(getattr(row, f"r{r}") for r in range(4))
-            + " |"
-            for row in table.itertuples()
-        ],
-        "",
-        "![success vs demos](data_efficiency.png)",
-        "",
-        *headlines,
+        "| arm | " + " | ".join(f"round {r}" for r in range(4)) + " |",
+        "| --- |" + " --- |" * 4,
     ]
+    for arm in ARMS:
+        mean_demos = demos[arm].mean(axis=(0, 1))
+        lines.append(
+            f"| {LABELS[arm]} | "
+            + " | ".join(
+                f"{100 * avg[arm][:, r].mean():.1f} ± {100 * avg[arm][:, r].std():.1f} ({mean_demos[r]:.1f})"
+                for r in range(4)
+            )
+            + " |"
+        )
+    lines += [
+        "",
+        "Per task, round 3 (mean over seeds) and the paired difference to Uniform (same seed, same task):",
+        "",
+        "| task | " + " | ".join(LABELS[a].split(" (")[0] for a in ARMS) + " |",
+        "| --- |" + " --- |" * len(ARMS),
+    ]
+    for t, task in enumerate(tasks):
+        cells = [f"{100 * sr['uniform'][:, t, 3].mean():.0f}"]
+        cells += [
+            f"{100 * sr[a][:, t, 3].mean():.0f} ({100 * (sr[a][:, t, 3] - sr['uniform'][:, t, 3]).mean():+.0f})"
+            for a in ARMS
+            if a != "uniform"
+        ]
+        lines.append(f"| {task} | " + " | ".join(cells) + " |")
+    uniform_final = avg["uniform"][:, 3].mean()
+    lines += ["", "## Headlines", ""]
+    best = max((a for a in ARMS if a != "uniform"), key=lambda a: avg[a][:, 3].mean())
+    for arm in [a for a in ARMS if a != "uniform"]:
+        paired = 100 * (avg[arm][:, 3] - avg["uniform"][:, 3])
+        reached = demos_to_reach(added[arm], avg[arm].mean(axis=0), uniform_final)
+        ratio = f"{reached / added['uniform'][3]:.2f}x" if reached is not None else "not reached"
+        lines.append(
+            f"- {LABELS[arm]}: round 3 {100 * avg[arm][:, 3].mean():.1f} % vs Uniform "
+            f"{100 * uniform_final:.1f} %: **{paired.mean():+.1f} points** (paired per seed: "
+            f"{', '.join(f'{p:+.1f}' for p in paired)}), {added[arm][3]:.1f} vs {added['uniform'][3]:.1f} "
+            f"added demos per task; Uniform's final average reached with **{ratio}** of Uniform's added "
+            "demos."
+        )
+    lines += [
+        "",
+        f"Goal: the best arm ({LABELS[best]}) >= Uniform + 5 points after round 3; Uniform's final average "
+        "with <= 1/3 of its added demos.",
+        "",
+        "Success against every episode spent per task (demonstrations + evaluation episodes, the cost the paper "
+        "leaves out), cumulative over rounds 1-3:",
+        "",
+        "| arm | " + " | ".join(f"after round {r}" for r in range(4)) + " |",
+        "| --- |" + " --- |" * 4,
+    ]
+    for arm in ARMS:
+        lines.append(
+            f"| {LABELS[arm]} | "
+            + " | ".join(f"{100 * avg[arm][:, r].mean():.1f} % @ {episodes[arm][r]:.1f}" for r in range(4))
+            + " |"
+        )
+    plot(
+        {arm: (added[arm], avg[arm].mean(axis=0), avg[arm].std(axis=0)) for arm in ARMS},
+        RESULTS / "data_efficiency.png",
+    )
+    for name in ("select", "noise"):
+        if (out / f"{name}.md").exists():
+            lines += ["", f"## {name}", "", (out / f"{name}.md").read_text()]
+    lines += ["", "![success vs added demos](data_efficiency.png)"]
     (RESULTS / "data_efficiency.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -234,46 +280,36 @@ def plot(curves: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(6.5, 4))
     for arm, (x, y, e) in curves.items():
         ax.errorbar(x, 100 * y, yerr=100 * e, marker="o", capsize=3, label=LABELS[arm])
-    ax.set_xlabel("average demos per task")
+    ax.set_xlabel("demos added per task (after the shared round 0)")
     ax.set_ylabel("average success rate (%)")
-    ax.set_title("MetaWorld (6 tasks): success vs demonstrations")
     ax.grid(alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("phase", choices=["select", "noise", "arms", "report"])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS))
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
-    parser.add_argument("--aggregate_only", action="store_true")
-    parser.add_argument("--uniform_3x", action="store_true", help="also run Uniform with 3x AdaDemo's budget")
-    parser.add_argument(
-        "--arms",
-        nargs="+",
-        choices=list(ARMS),
-        help="run only these arms (e.g. two drivers on disjoint arms; uniform arms need adademo's ledger)",
-    )
-    parser.add_argument(
-        "--torch_threads",
-        type=int,
-        help="torch threads per run (default: the recipe's 2); use 1 when two drivers share 2 cores",
-    )
+    parser.add_argument("--torch_threads", type=int, default=None)
     args = parser.parse_args()
-    if args.torch_threads:
+    if args.torch_threads is not None:
         TORCH_THREADS.append(f"--train.torch_threads={args.torch_threads}")
-    start = time.time()
-    if not args.aggregate_only:
-        arms = args.arms or MAIN_ARMS + (["uniform_3x"] if args.uniform_3x else [])
-        for seed in args.seeds:
-            run_seed(args.out, seed, arms)
-    if not args.arms:  # a partial driver leaves the tables to a full run or --aggregate_only
-        aggregate(args.out, args.seeds)
-    print(f"total {time.time() - start:.0f} s")
+        os.environ["OMP_NUM_THREADS"] = str(args.torch_threads)
+    if args.phase == "select":
+        phase_select(args.out)
+    elif args.phase == "noise":
+        phase_noise(args.out)
+    elif args.phase == "arms":
+        phase_arms(args.out, args.seeds, args.arms)
+    else:
+        phase_report(args.out, args.seeds)
 
 
 if __name__ == "__main__":

@@ -215,3 +215,143 @@ def test_ledger_appends_whole_rounds_once(tmp_path):
         json.loads(line)["round"]
         for line in (tmp_path / "meta/adademo/rounds.jsonl").read_text().splitlines()
     ] == [1, 1, 2]
+
+
+# -- the budgeted strategy ------------------------------------------------------------------------------------
+
+
+@dataclass
+class BudgetRound:
+    """A round context for the budgeted strategy: per task, scripted outcomes in sampling order ("F"/"S") and
+    the positions where the expert fails."""
+
+    outcomes: dict[str, str]
+    budget: int
+    max_demos_per_task: int = 50
+    max_eval_episodes_per_task: int = 100
+    batch_size: int = 4
+    expert_fails_on: dict[str, set] = field(default_factory=dict)
+    root: str = "/nonexistent"  # no earlier rounds: every prior is Beta(1, 1)
+    seed: int = 0
+    round_index: int = 1
+    posterior_decay: float = 0.5
+
+    def __post_init__(self):
+        self.suite = type("Suite", (), {"tasks": list(self.outcomes)})()
+        self.dataset = type("Dataset", (), {"root": self.root})()
+        self.evaluated = {t: [] for t in self.outcomes}
+        self.collected = {t: [] for t in self.outcomes}
+        self._position = {t: {} for t in self.outcomes}
+
+    def new_record(self, task, strategy):
+        return TaskRoundRecord(self.round_index, task, strategy, None, self.max_demos_per_task, None, None)
+
+    def evaluate(self, task, seeds):
+        out = []
+        for s in seeds:
+            k = self._position[task].setdefault(s, len(self._position[task]))
+            self.evaluated[task].append(s)
+            out.append(Outcome(s, self.outcomes[task][k] == "S"))
+        return out
+
+    def ask_expert(self, task, seeds):
+        pass
+
+    def collect_demo(self, task, seed, record):
+        self.collected[task].append(seed)
+        if self._position[task][seed] in self.expert_fails_on.get(task, set()):
+            record.expert_failures += 1
+            return False
+        record.demos_added += 1
+        return True
+
+    def progress(self, task, record):
+        pass
+
+
+def test_allocate_splits_exactly_in_proportion_within_caps():
+    from adademo_lerobot.strategies.budgeted import allocate
+
+    assert allocate(10, {"a": 0.5, "b": 0.3, "c": 0.2}, {"a": 10, "b": 10, "c": 10}) == {
+        "a": 5,
+        "b": 3,
+        "c": 2,
+    }
+    assert allocate(10, {"a": 0.9, "b": 0.05, "c": 0.05}, {"a": 4, "b": 10, "c": 10}) == {
+        "a": 4,
+        "b": 3,
+        "c": 3,
+    }
+    assert allocate(3, {"a": 1.0, "b": 1.0}, {"a": 5, "b": 5}) == {"a": 2, "b": 1}  # ties: the earlier task
+    assert allocate(20, {"a": 1.0, "b": 1.0}, {"a": 4, "b": 5}) == {"a": 4, "b": 5}  # all caps: 9 < 20
+    for total in range(0, 30):
+        split = allocate(total, {"a": 0.7, "b": 0.2, "c": 0.1}, {"a": 8, "b": 8, "c": 8})
+        assert sum(split.values()) == min(total, 24) and max(split.values()) <= 8
+
+
+def test_budgeted_spends_exactly_the_budget_on_failed_states_weak_tasks_first():
+    from adademo_lerobot.strategies.budgeted import BudgetedStrategy
+
+    ctx = BudgetRound(
+        {
+            "easy": "SSSSSSSSFSSSSSSSSSSSSSSSS" * 4,
+            "hard": "FFFSFFFFFFFFFFFFFFFFFFFF" * 4,
+            "mid": "SFSFSFSFSFSFSFSFSFSFSF" * 4,
+        },
+        budget=12,
+    )
+    records = {r.task: r for r in BudgetedStrategy().expand_round(ctx)}
+    assert sum(r.demos_added for r in records.values()) == 12
+    assert records["hard"].demos_added > records["mid"].demos_added > records["easy"].demos_added
+    for task, r in records.items():  # every demo from a state the policy failed, every evaluation accounted
+        positions = [ctx._position[task][s] for s in ctx.collected[task]]
+        assert all(ctx.outcomes[task][k] == "F" for k in positions)
+        assert r.eval_episodes == len(ctx.evaluated[task]) == r.successes + r.failures
+        assert r.failures == r.demos_added + r.expert_failures
+        a, b = r.extra["posterior"]
+        assert (a, b) == (1 + r.successes, 1 + r.failures)  # the posterior counts every outcome of the round
+        assert r.planned_demos is not None and r.extra["round_spent"] == 12
+    assert records["hard"].planned_demos == records["easy"].planned_demos  # Beta(1, 1): an even first split
+
+
+def test_budgeted_falls_short_only_where_the_expert_fails_and_says_so(capsys):
+    from adademo_lerobot.strategies.budgeted import BudgetedStrategy
+
+    ctx = BudgetRound(
+        {"a": "F" * 40, "b": "F" * 40},
+        budget=10,
+        max_demos_per_task=50,
+        max_eval_episodes_per_task=8,
+        expert_fails_on={"b": set(range(40))},
+    )
+    records = {r.task: r for r in BudgetedStrategy().expand_round(ctx)}
+    assert records["b"].demos_added == 0 and records["b"].eval_bound_hit
+    assert records["a"].demos_added == 8 and records["a"].eval_bound_hit  # bounded too: 8 of the 10
+    assert "spent 8 of its budget of 10" in capsys.readouterr().out
+
+
+def test_budgeted_prior_comes_from_earlier_rounds_evaluations_with_decay(tmp_path):
+    from adademo_lerobot.strategies.budgeted import prior_from_earlier_rounds
+
+    for r, outcomes in ((1, [True, False, False, False]), (2, [True, True])):
+        journal = RoundJournal(tmp_path, r)
+        journal.append(
+            *(
+                {"type": "eval", "task": "a", "seed": i, "success": s, "steps": 1}
+                for i, s in enumerate(outcomes)
+            )
+        )
+        journal.finish()
+    # round 3: round 2 weighs 1, round 1 weighs 0.5
+    assert prior_from_earlier_rounds(tmp_path, 3, "a") == (1 + 2 + 0.5 * 1, 1 + 0 + 0.5 * 3)
+    assert prior_from_earlier_rounds(tmp_path, 3, "b") == (1.0, 1.0)
+    assert prior_from_earlier_rounds(tmp_path, 3, "a", decay=1.0) == (1 + 3, 1 + 3)
+
+
+def test_the_papers_e_is_picked_to_fit_a_budget():
+    from adademo_lerobot.strategies.budgeted import pick_target_successes
+
+    target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.25}, cap=50)
+    assert target == 5 and plan == {"a": 5, "b": 15}  # E=6 would need 6 + 18 = 24 > 20
+    target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.0}, cap=8)
+    assert target == 8 and plan == {"a": 8, "b": 8}  # SR 0 gets CAP; past E=8 CAP stops the total growing

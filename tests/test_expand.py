@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 import shutil
 import signal
 import subprocess
@@ -326,4 +327,55 @@ def test_checkpoint_with_another_action_size_is_refused(dataset, tmp_path):
         match="action shape (5,)",
     )
     assert "(4,)" in last
+    assert file_digests(dataset) == before
+
+
+def test_budgeted_spends_exactly_its_budget_on_failed_states_and_records_the_posterior(dataset, ckpt):
+    args = [f"--policy.path={ckpt}", "--strategy=budgeted", "--max_demos_per_task=10", "--eval.batch_size=3"]
+    expand(dataset, *args, "--budget=5")
+    _, new, ledger = check_ledger_agrees(dataset, 1)
+    assert (
+        len(new) == 5 == sum(r["demos_added"] for r in ledger)
+    )  # the weak policy fails: the expert fills it
+    evaluations = {
+        (e["task"], e["seed"]): e for e in read_round_evaluations(dataset, 1) if e["type"] == "eval"
+    }
+    assert all(
+        evaluations[(t, s)]["success"] is False for t, s in zip(new.task, new["adademo/seed"], strict=True)
+    )
+    for r in ledger:
+        assert r["strategy"] == "budgeted" and r["planned_demos"] is not None and r["extra"]["budget"] == 5
+        assert r["extra"]["prior"] == [1.0, 1.0]  # no earlier round
+        assert r["extra"]["posterior"] == [1 + r["successes"], 1 + r["failures"]]
+    # Round 2 starts from round 1's outcomes.
+    expand(dataset, *args, "--budget=4")
+    _, new, ledger = check_ledger_agrees(dataset, 2)
+    assert len(new) == 4
+    assert all(r["extra"]["prior"] != [1.0, 1.0] for r in ledger)
+
+
+def test_a_budget_picks_e_for_the_papers_strategy(dataset, ckpt):
+    proc = expand(
+        dataset, f"--policy.path={ckpt}", "--strategy=adademo", "--budget=6", "--max_demos_per_task=3"
+    )
+    picked = int(re.search(r"picked E=(\d+)", proc.stdout).group(1))
+    _, new, ledger = check_ledger_agrees(dataset, 1)
+    assert {r["target_successes"] for r in ledger} == {picked} and len(new) <= 6
+
+
+def test_budget_bad_input_gets_one_error_and_no_change(dataset, ckpt):
+    before = file_digests(dataset)
+    for args, match in (
+        (["--strategy=budgeted", "--budget=0"], "--budget must be >= 1"),
+        (["--strategy=budgeted"], "needs --budget"),
+        (["--strategy=adademo", "--budget=5", "--target_successes=3"], "both set the round's size"),
+    ):
+        assert_cli_error(
+            "adademo-expand",
+            "--dataset.repo_id=local/demo",
+            f"--dataset.root={dataset}",
+            f"--policy.path={ckpt}",
+            *args,
+            match=match,
+        )
     assert file_digests(dataset) == before

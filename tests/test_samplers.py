@@ -105,3 +105,26 @@ def test_bad_sampler_arguments():
         make_sampling_scheme("trajectory", 0.5, 3)
     with pytest.raises(AdaDemoError, match="min_task_weight"):
         make_sampling_scheme("trajectory", -0.1, 3)
+
+
+def test_tempered_interpolates_between_task_and_trajectory_uniform():
+    from adademo_lerobot.samplers import Tempered
+
+    tasks = ["a"] * 8 + ["b"] * 2
+    lengths = [10] * 10
+    for alpha, expected_a in ((1.0, 0.8), (0.0, 0.5), (0.5, 8**0.5 / (8**0.5 + 2**0.5))):
+        probs = Tempered(alpha).episode_probabilities(tasks, lengths)
+        assert abs(probs[:8].sum() - expected_a) < 1e-12 and abs(probs.sum() - 1) < 1e-12
+        assert len(set(probs[:8])) == 1  # uniform over a task's trajectories
+    np.testing.assert_allclose(
+        Tempered(1.0).episode_probabilities(tasks, lengths),
+        make_sampling_scheme("trajectory", 0.0, 2).episode_probabilities(tasks, lengths),
+    )
+    np.testing.assert_allclose(
+        Tempered(0.0).episode_probabilities(tasks, lengths),
+        make_sampling_scheme("task", 0.0, 2).episode_probabilities(tasks, lengths),
+    )
+    floored = Tempered(1.0, min_task_weight=0.3).episode_probabilities(tasks, lengths)
+    assert abs(floored[8:].sum() - 0.3) < 1e-12  # the per-task floor still applies
+    with pytest.raises(AdaDemoError, match="sampler_alpha"):
+        make_sampling_scheme("tempered", 0.0, 2, alpha=-1)

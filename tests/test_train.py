@@ -155,6 +155,14 @@ def test_bad_input(reach_push_dataset, act_run, tmp_path):
     )
     fails(*common, *TINY_ACT, f"--output_dir={act_run}", match="--resume=true")
     fails(*common, *TINY_ACT, "--output_dir=/proc/version/out", match="output_dir")
+    fails(
+        *common,
+        *TINY_ACT,
+        "--sampler=tempered",
+        "--sampler_alpha=-0.5",
+        f"--output_dir={tmp_path / 'f'}",
+        match="--sampler_alpha must be >= 0",
+    )
     # A checkpoint trained on 2 tasks cannot be fine-tuned on a 3-task dataset (one-hot size differs).
     three = tmp_path / "three"
     run_cli(
@@ -171,7 +179,7 @@ def test_bad_input(reach_push_dataset, act_run, tmp_path):
         f"--output_dir={tmp_path / 'e'}",
         match="observation.environment_state",
     )
-    assert not any((tmp_path / d).exists() for d in "abce")
+    assert not any((tmp_path / d).exists() for d in "abcef")
 
 
 def test_trains_on_a_plain_lerobot_dataset(reach_push_dataset, tmp_path):

@@ -6,6 +6,7 @@ from adademo_lerobot.samplers.weights import (
     FrameUniform,
     SamplingScheme,
     TaskUniform,
+    Tempered,
     TrajectoryUniform,
     floor_shares,
     frame_weights,
@@ -13,6 +14,6 @@ from adademo_lerobot.samplers.weights import (
 )
 
 __all__ = [
-    "SAMPLERS", "FrameUniform", "SamplingScheme", "TaskUniform", "TrajectoryUniform", "WeightedFrameSampler",
+    "SAMPLERS", "FrameUniform", "SamplingScheme", "TaskUniform", "Tempered", "TrajectoryUniform", "WeightedFrameSampler",
     "floor_shares", "frame_weights", "make_sampling_scheme",
 ]  # fmt: skip

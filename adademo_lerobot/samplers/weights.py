@@ -7,6 +7,7 @@ can train on. The per-frame weights are computed once and drawn from with replac
 - `task`: every task equally likely, then uniform over its trajectories.
 - `trajectory` (AdaDemo, principle C): every trajectory equally likely, so task k's share is n_k / sum(n);
   tasks below `min_task_weight` are lifted to it and the rest share the remainder in proportion to n_k.
+- `tempered`: task k's share proportional to n_k ** alpha (`--sampler_alpha`; 1 = `trajectory`, 0 = `task`).
 """
 
 from __future__ import annotations
@@ -55,25 +56,23 @@ class FrameUniform:
         return lengths / lengths.sum()
 
 
-class TaskUniform:
-    name = "task"
+class Tempered:
+    """Task k's share proportional to n_k ** alpha (n_k: its trajectories), then uniform over its trajectories.
 
-    def episode_probabilities(self, episode_tasks, episode_lengths) -> np.ndarray:
-        tasks = np.asarray(episode_tasks)
-        counts = pd.Series(tasks).value_counts()
-        return np.array([1.0 / len(counts) / counts[t] for t in tasks])
+    alpha = 1 is AdaDemo's principle C (trajectory-uniform: a task's share is n_k / sum n), alpha = 0 is
+    task-uniform; in between, tasks that got more demos get more weight, less than in proportion. Tasks below
+    `min_task_weight` are lifted to it and the rest keep their proportions."""
 
+    name = "tempered"
 
-class TrajectoryUniform:
-    name = "trajectory"
-
-    def __init__(self, min_task_weight: float = 0.0):
-        self.min_task_weight = min_task_weight
+    def __init__(self, alpha: float = 1.0, min_task_weight: float = 0.0):
+        self.alpha, self.min_task_weight = alpha, min_task_weight
 
     def task_shares(self, episode_tasks) -> dict[str, float]:
         counts = pd.Series(np.asarray(episode_tasks)).value_counts()
-        shares = {t: c / counts.sum() for t, c in counts.items()}
-        return floor_shares(shares, self.min_task_weight)
+        powered = {t: float(c) ** self.alpha for t, c in counts.items()}
+        total = sum(powered.values())
+        return floor_shares({t: v / total for t, v in powered.items()}, self.min_task_weight)
 
     def episode_probabilities(self, episode_tasks, episode_lengths) -> np.ndarray:
         tasks = np.asarray(episode_tasks)
@@ -82,12 +81,36 @@ class TrajectoryUniform:
         return np.array([shares[t] / counts[t] for t in tasks])
 
 
-SAMPLERS = ("trajectory", "task", "frame")
+class TrajectoryUniform(Tempered):
+    """AdaDemo's principle C: every trajectory equally likely (`tempered` with alpha = 1)."""
+
+    name = "trajectory"
+
+    def __init__(self, min_task_weight: float = 0.0):
+        super().__init__(1.0, min_task_weight)
 
 
-def make_sampling_scheme(name: str, min_task_weight: float, num_tasks: int) -> SamplingScheme:
+class TaskUniform(Tempered):
+    """Every task equally likely, then uniform over its trajectories (`tempered` with alpha = 0)."""
+
+    name = "task"
+
+    def __init__(self):
+        super().__init__(0.0, 0.0)
+
+
+SAMPLERS = ("trajectory", "task", "frame", "tempered")
+
+
+def make_sampling_scheme(
+    name: str, min_task_weight: float, num_tasks: int, alpha: float = 1.0
+) -> SamplingScheme:
     if name not in SAMPLERS:
         raise AdaDemoError(f"unknown --sampler={name!r}; choose one of {', '.join(SAMPLERS)}")
+    if alpha < 0:
+        raise AdaDemoError(
+            f"--sampler_alpha must be >= 0 (0: task-uniform, 1: trajectory-uniform), got {alpha}"
+        )
     if not 0.0 <= min_task_weight <= 1.0 / max(num_tasks, 1) + 1e-12:
         raise AdaDemoError(
             f"--min_task_weight={min_task_weight} must be in [0, 1/num_tasks] = [0, {1 / max(num_tasks, 1):.4f}]"
@@ -96,6 +119,8 @@ def make_sampling_scheme(name: str, min_task_weight: float, num_tasks: int) -> S
         return FrameUniform()
     if name == "task":
         return TaskUniform()
+    if name == "tempered":
+        return Tempered(alpha, min_task_weight)
     return TrajectoryUniform(min_task_weight)
 
 

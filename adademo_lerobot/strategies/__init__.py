@@ -1,13 +1,14 @@
-"""Expansion strategies: AdaDemo (A+B), the Uniform baseline and ablation A (task_only)."""
+"""Expansion strategies: AdaDemo (A+B), the Uniform baseline, ablation A (task_only) and the budgeted AdaDemo."""
 
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.strategies.adademo import AdaDemoStrategy
 from adademo_lerobot.strategies.base import ExpansionStrategy, RoundContext, planned_demos
+from adademo_lerobot.strategies.budgeted import BudgetedStrategy
 from adademo_lerobot.strategies.task_only import TaskOnlyStrategy
 from adademo_lerobot.strategies.uniform import UniformStrategy
 
 STRATEGY_CLASSES: dict[str, type] = {
-    cls.name: cls for cls in (AdaDemoStrategy, UniformStrategy, TaskOnlyStrategy)
+    cls.name: cls for cls in (AdaDemoStrategy, BudgetedStrategy, UniformStrategy, TaskOnlyStrategy)
 }
 STRATEGIES = tuple(STRATEGY_CLASSES)
 

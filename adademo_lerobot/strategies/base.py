@@ -36,6 +36,12 @@ def planned_demos(target_successes: int, success_rate: float, cap: int) -> int:
     return min(cap, max(0, math.ceil(target_successes / success_rate - target_successes - 1e-9)))
 
 
+def split_evenly(budget: int, tasks: list[str]) -> dict[str, int]:
+    """Uniform's demos per task for a budget: B // K each, the first B mod K tasks one more (sums to B)."""
+    base, extra = divmod(budget, len(tasks))
+    return {t: base + (i < extra) for i, t in enumerate(tasks)}
+
+
 @dataclass
 class Outcome:
     """The policy's result from one initial state (the state is the seed's)."""
@@ -63,16 +69,17 @@ class OrderedAppender:
         self.dataset, self.suite = dataset, suite
         self.round_index, self.source, self.collector = round_index, source, collector
         self.commit_every = max(1, commit_every)
-        self.order = list(tasks)
+        self.by_task = tasks is not None  # None: commit in the order demos arrive (one loop over all tasks)
+        self.order = list(tasks or [])
         self._head = 0  # index in `order` of the first unfinished task
-        self._held: dict[str, list[Demonstration]] = {t: [] for t in tasks}
+        self._held: dict[str, list[Demonstration]] = {t: [] for t in self.order}
         self._finished: set[str] = set()
         self._buffer: list[Demonstration] = []
         self._lock = threading.RLock()
 
     def add(self, task: str, demo: Demonstration) -> None:
         with self._lock:
-            if self._head < len(self.order) and task == self.order[self._head]:
+            if not self.by_task or (self._head < len(self.order) and task == self.order[self._head]):
                 self._buffer.append(demo)
                 if len(self._buffer) >= self.commit_every:
                     self.flush()
@@ -81,6 +88,9 @@ class OrderedAppender:
 
     def finish(self, task: str) -> None:
         with self._lock:
+            if not self.by_task:
+                self.flush()
+                return
             self._finished.add(task)
             while self._head < len(self.order) and self.order[self._head] in self._finished:
                 self.flush()  # the end of a task is a commit point
@@ -113,6 +123,9 @@ class RoundContext:
     plan_episodes_per_task: int = 20
     commit_every: int = 10
     policy_path: str | None = None
+    budget: int | None = None  # the budgeted strategy's demos for the round
+    posterior_decay: float = 0.5  # the budgeted strategy's weight of a round's outcomes per round since
+    commit_by_task: bool = True  # False: one loop over all tasks commits demos in the order they arrive
     on_progress: Callable[[str, TaskRoundRecord], None] | None = None
     _committed: dict[str, set[int]] = field(default_factory=dict)
     _pending: dict[tuple[str, int], Pending] = field(default_factory=dict)
@@ -130,7 +143,7 @@ class RoundContext:
             self.source,
             self.collector_name,
             self.commit_every,
-            self.suite.tasks,
+            self.suite.tasks if self.commit_by_task else None,
         )
         if (self.dataset.root / "meta" / "info.json").exists():
             eps = self.dataset.episodes()
@@ -142,6 +155,10 @@ class RoundContext:
     def batch_size(self) -> int:
         """Episodes evaluated side by side in one unit of work (`--eval.batch_size`)."""
         return self.executor.batch_size
+
+    def demos_for(self, task: str) -> int:
+        """Uniform's N for this task: `--demos_per_task`, or its even share of `--budget`."""
+        return split_evenly(self.budget, self.suite.tasks)[task] if self.budget else self.demos_per_task
 
     def new_record(self, task: str, strategy: str) -> TaskRoundRecord:
         return TaskRoundRecord(
@@ -257,6 +274,10 @@ class RoundContext:
         self._appender.finish(task)
         self._journal({"type": "time", "task": task, "seconds": time.perf_counter() - started})
 
+    def flush(self) -> None:
+        """Commit what is buffered (the end of a round-wide loop)."""
+        self._appender.flush()
+
     def run_tasks(self, work: Callable[[str], TaskRoundRecord]) -> list[TaskRoundRecord]:
         """`work(task)` for every task of the suite; records in suite order. One task after the other with the
         local executor; side by side (one waiting thread per task, the episodes on the Ray workers) when the
@@ -280,6 +301,9 @@ class RoundContext:
 
 
 class ExpansionStrategy(Protocol):
+    """A strategy expands one task at a time (`expand_task`, the paper's loop: tasks are independent), or, when
+    its decisions span tasks (the budgeted strategy), the whole round at once (`expand_round`)."""
+
     name: str
     needs_policy: bool
 

@@ -11,5 +11,6 @@ class UniformStrategy:
     def expand_task(self, ctx: RoundContext, task: str) -> TaskRoundRecord:
         record = ctx.new_record(task, self.name)
         record.target_successes = record.max_demos_per_task = None
-        ctx.collect_from_fresh_states(task, ctx.demos_per_task, record)
+        record.demos_per_task = ctx.demos_for(task)
+        ctx.collect_from_fresh_states(task, record.demos_per_task, record)
         return record

@@ -1,0 +1,178 @@
+"""`--strategy=budgeted --budget=B`: AdaDemo's principles A and B with a round budget instead of E.
+
+The paper sets E "according to the budget" by hand, and a task's share follows from a handful of evaluation
+episodes. Here the round spends exactly B demonstrations (fewer only where the expert fails every draw or a
+task reaches CAP, and then it says so):
+
+- each task's success rate is a Beta posterior over every expansion-round evaluation outcome seen so far (the
+  earlier rounds' records, each round's weight halved per round since, as the policy changed; never the fixed
+  evaluation set, which is the test set), updated with every outcome of this round;
+- the budget is split across tasks in proportion to each task's expected failure rate (the posterior mean of
+  1 - SR), never more than CAP per task (`allocate`), and re-split after every evaluation batch;
+- demonstrations come only from initial states where the policy failed (principle B): the task furthest below
+  its share is evaluated, at most as many states at once as it still lacks, every failure is handed to the
+  expert and every success updates the posterior, and so the split. Evaluation is spent only where
+  demonstrations are planned, and only as long as it finds them.
+
+Every decision depends only on journaled outcomes, so an interrupted round resumes to the same result, and the
+Ray executor gives the local one's.
+"""
+
+from __future__ import annotations
+
+from adademo_lerobot.ledger import read_round_evaluations
+from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.seeds import expansion_state_seed
+from adademo_lerobot.strategies.base import RoundContext
+
+DEFAULT_DECAY = 0.5  # weight of a round's outcomes per round since (the policy was retrained in between)
+
+
+def allocate(total: int, weights: dict[str, float], caps: dict[str, int]) -> dict[str, int]:
+    """Split `total` integer units across keys in proportion to `weights`, at most `caps[k]` each (water
+    filling, then largest remainders; ties go to the earlier key). Sums to min(total, sum(caps))."""
+    alloc = dict.fromkeys(weights, 0)
+    left = min(total, sum(max(c, 0) for c in caps.values()))
+    open_keys = [k for k in weights if caps[k] > 0]
+    while left > 0 and open_keys:
+        mass = sum(max(weights[k], 0.0) for k in open_keys)
+        shares = {
+            k: left * (max(weights[k], 0.0) / mass if mass > 0 else 1 / len(open_keys)) for k in open_keys
+        }
+        capped = [k for k in open_keys if alloc[k] + shares[k] >= caps[k]]
+        if capped:  # these reach their cap: give it, and share the rest among the others
+            for k in capped:
+                left -= caps[k] - alloc[k]
+                alloc[k] = caps[k]
+            open_keys = [k for k in open_keys if k not in capped]
+            continue
+        floors = {k: int(shares[k]) for k in open_keys}
+        for k in open_keys:
+            alloc[k] += floors[k]
+        left -= sum(floors.values())
+        by_remainder = sorted(open_keys, key=lambda k: (-(shares[k] - floors[k]), list(weights).index(k)))
+        for k in by_remainder[:left]:
+            alloc[k] += 1
+        left = 0
+    return alloc
+
+
+def prior_from_earlier_rounds(
+    root, round_index: int, task: str, decay: float = DEFAULT_DECAY
+) -> tuple[float, float]:
+    """Beta(alpha, beta) over the task's evaluation outcomes in rounds before `round_index` (Beta(1, 1) before
+    any): a round r outcome weighs decay ** (round_index - 1 - r)."""
+    alpha, beta = 1.0, 1.0
+    for r in range(1, round_index):
+        weight = decay ** (round_index - 1 - r)
+        for entry in read_round_evaluations(root, r):
+            if entry.get("type") == "eval" and entry.get("task") == task:
+                alpha += weight * bool(entry["success"])
+                beta += weight * (not entry["success"])
+    return alpha, beta
+
+
+def failure_mean(posterior: tuple[float, float]) -> float:
+    alpha, beta = posterior
+    return beta / (alpha + beta)
+
+
+class BudgetedStrategy:
+    name = "budgeted"
+    needs_policy = True
+
+    def expand_round(self, ctx: RoundContext) -> list[TaskRoundRecord]:
+        tasks, budget, cap = ctx.suite.tasks, ctx.budget, ctx.max_demos_per_task
+        posterior = {
+            t: prior_from_earlier_rounds(ctx.dataset.root, ctx.round_index, t, ctx.posterior_decay)
+            for t in tasks
+        }
+        records = {t: ctx.new_record(t, self.name) for t in tasks}
+        first_plan = allocate(
+            budget, {t: failure_mean(posterior[t]) for t in tasks}, dict.fromkeys(tasks, cap)
+        )
+        for t in tasks:
+            records[t].target_successes = None
+            records[t].planned_demos = first_plan[t]
+            records[t].extra = {"budget": budget, "prior": list(posterior[t])}
+        sampled = dict.fromkeys(tasks, 0)
+        while sum(r.demos_added for r in records.values()) < budget:
+            open_tasks = [
+                t
+                for t in tasks
+                if records[t].demos_added < cap and sampled[t] < ctx.max_eval_episodes_per_task
+            ]
+            if not open_tasks:
+                break
+            # The round's split under what is known now (a closed task keeps what it has), and who lacks most.
+            caps = {t: cap if t in open_tasks else records[t].demos_added for t in tasks}
+            share = allocate(budget, {t: failure_mean(posterior[t]) for t in tasks}, caps)
+            lacking = {t: share[t] - records[t].demos_added for t in open_tasks}
+            if max(lacking.values()) <= 0:  # tasks over their share hold the rest: split what is left
+                left = budget - sum(r.demos_added for r in records.values())
+                lacking = allocate(
+                    left,
+                    {t: failure_mean(posterior[t]) for t in open_tasks},
+                    {t: cap - records[t].demos_added for t in open_tasks},
+                )
+            task = max(open_tasks, key=lambda t: (lacking[t], -tasks.index(t)))
+            record = records[task]
+            n = min(
+                ctx.batch_size,
+                lacking[task],
+                ctx.max_eval_episodes_per_task - sampled[task],
+                budget - sum(r.demos_added for r in records.values()),
+            )
+            seeds = [
+                expansion_state_seed(ctx.seed, ctx.round_index, task, sampled[task] + j) for j in range(n)
+            ]
+            outcomes = ctx.evaluate(task, seeds)
+            ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
+            alpha, beta = posterior[task]
+            for outcome in outcomes:
+                sampled[task] += 1
+                record.eval_episodes += 1
+                if outcome.success:
+                    record.successes += 1
+                    alpha += 1
+                else:
+                    record.failures += 1
+                    beta += 1
+                    ctx.collect_demo(task, outcome.seed, record)  # principle B: only where the policy failed
+                ctx.progress(task, record)
+            posterior[task] = (alpha, beta)
+        spent = sum(r.demos_added for r in records.values())
+        for t in tasks:
+            r = records[t]
+            r.cap_hit = r.demos_added >= cap
+            r.eval_bound_hit = sampled[t] >= ctx.max_eval_episodes_per_task and not r.cap_hit
+            r.extra.update(
+                posterior=list(posterior[t]),
+                posterior_success_mean=1 - failure_mean(posterior[t]),
+                round_spent=spent,
+            )
+        if spent < budget:
+            blocked = [t for t in tasks if records[t].cap_hit or records[t].eval_bound_hit]
+            print(
+                f"note: round {ctx.round_index} spent {spent} of its budget of {budget} demonstrations: "
+                f"{', '.join(blocked)} reached CAP or the evaluation bound (the expert failed every draw or the "
+                "policy stopped failing)"
+            )
+        return [records[t] for t in tasks]
+
+
+def pick_target_successes(
+    budget: int, success_rates: dict[str, float], cap: int
+) -> tuple[int, dict[str, int]]:
+    """The E whose predicted total (the paper's N_k = E / SR_k - E, capped at CAP) comes closest to the budget
+    without passing it (the smallest such E, once CAP stops the total from growing), and that prediction."""
+    from adademo_lerobot.strategies.base import planned_demos
+
+    best, best_plan = 1, {t: planned_demos(1, sr, cap) for t, sr in success_rates.items()}
+    for target in range(2, budget + 1):
+        plan = {t: planned_demos(target, sr, cap) for t, sr in success_rates.items()}
+        if sum(plan.values()) > budget:
+            break
+        if sum(plan.values()) > sum(best_plan.values()):
+            best, best_plan = target, plan
+    return best, best_plan
