@@ -102,15 +102,22 @@ def eval_table(run_dir: Path, round_index: int) -> dict[str, float]:
     return {row["task"]: row["success_rate"] for row in summary["per_task"]}
 
 
-def phase_select(out: Path) -> None:
+def phase_select(out: Path, candidates: str, name: str) -> None:
     """Round 0 of a policy trained on the candidate tasks: which start between 20 % and 70 %."""
-    run_dir = out / "select"
-    # Twice the tasks of the recipe: twice its round-0 steps, the same passes over each task's demos.
-    adademo_run(run_dir, f"--suite.tasks={CANDIDATES}", "--rounds=0", "--train.steps=6000", *seed_flags(0))
+    run_dir = out / name
+    tasks = candidates.split(",")
+    # The recipe's round-0 steps per task (3000 for 8 tasks): the same passes over each task's demos.
+    steps = 3000 * len(tasks) // 8
+    adademo_run(
+        run_dir, f"--suite.tasks={candidates}", "--rounds=0", f"--train.steps={steps}", *seed_flags(0)
+    )
     rates = eval_table(run_dir, 0)
     lines = [f"| {t} | {100 * sr:.0f} |" for t, sr in rates.items() if t != "average"]
-    (out / "select.md").write_text("| task | round-0 SR % |\n| --- | --- |\n" + "\n".join(lines) + "\n")
-    print((out / "select.md").read_text())
+    table = f"Candidates ({name}, {steps} steps):\n\n| task | round-0 SR % |\n| --- | --- |\n" + "\n".join(
+        lines
+    )
+    (out / f"{name}.md").write_text(table + "\n")
+    print(table)
 
 
 def phase_noise(out: Path) -> None:
@@ -267,9 +274,9 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         {arm: (added[arm], avg[arm].mean(axis=0), avg[arm].std(axis=0)) for arm in ARMS},
         RESULTS / "data_efficiency.png",
     )
-    for name in ("select", "noise"):
-        if (out / f"{name}.md").exists():
-            lines += ["", f"## {name}", "", (out / f"{name}.md").read_text()]
+    for path in [*sorted(out.glob("select*.md")), out / "noise.md"]:
+        if path.exists():
+            lines += ["", f"## {path.stem}", "", path.read_text()]
     lines += ["", "![success vs added demos](data_efficiency.png)"]
     (RESULTS / "data_efficiency.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
@@ -299,12 +306,14 @@ def main() -> None:
     parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS))
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
     parser.add_argument("--torch_threads", type=int, default=None)
+    parser.add_argument("--candidates", default=CANDIDATES, help="select: comma-separated MetaWorld tasks")
+    parser.add_argument("--name", default="select", help="select: the run's name under --out")
     args = parser.parse_args()
     if args.torch_threads is not None:
         TORCH_THREADS.append(f"--train.torch_threads={args.torch_threads}")
         os.environ["OMP_NUM_THREADS"] = str(args.torch_threads)
     if args.phase == "select":
-        phase_select(args.out)
+        phase_select(args.out, args.candidates, args.name)
     elif args.phase == "noise":
         phase_noise(args.out)
     elif args.phase == "arms":
