@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 VENV="${ADADEMO_VENV:-$HOME/.venvs/adademo-lerobot}"
 LOCK=requirements.lock
-EXTRAS="test,ray"
+EXTRAS="test,ray,robot"
 # This checkout and its LeRobot plugin distributions (plugins/*: LeRobot finds them by their names), editable.
 EDITABLES=(-e ".[$EXTRAS]")
 for plugin in plugins/*/; do EDITABLES+=(-e "$plugin"); done

@@ -32,6 +32,19 @@ class RunResults:
     success: pd.DataFrame  # index task (+ "average"), columns round -> success rate
     demos: pd.DataFrame  # index task, columns round -> cumulative demos after that round
     ledger: pd.DataFrame
+    started_from: str = ""  # where a run that began from the user's dataset/checkpoint started
+
+
+def describe_start(begun: dict) -> str:
+    if not begun:
+        return ""
+    dataset, policy = begun["origin"]["dataset"], begun["origin"]["policy"]
+    at = f" at {dataset['commit'][:8]}" if dataset.get("commit") else f" ({dataset['root']})"
+    text = f"Started from dataset {dataset['repo_id']}{at}, rounds 0..{begun['base_round']} of it"
+    if policy:
+        at = f" at {policy['commit'][:8]}" if policy.get("commit") else ""
+        text += f", and checkpoint {policy['path']}{at} (round 0 below)"
+    return text + "."
 
 
 def load_run(run_dir: Path) -> RunResults:
@@ -39,20 +52,31 @@ def load_run(run_dir: Path) -> RunResults:
     state_path = run_dir / "run_state.json"
     if not state_path.exists():
         raise AdaDemoError(f"{run_dir} is not an adademo-run folder (no run_state.json)")
-    settings = json.loads(state_path.read_text())["settings"]
+    state = json.loads(state_path.read_text())
+    settings = state["settings"]
     tasks = settings["suite"]["tasks"].split(",")
+    # A run started from a user's dataset: its round r is the dataset's round base + r.
+    begun = state["done"].get("start", {}).get("result", {})
+    dataset_root = Path(begun.get("dataset_root", run_dir / "dataset"))
+    base = begun.get("base_round", 0)
     success = {}
     for summary in sorted((run_dir / "eval").glob("round-*/eval_summary.json")):
         data = json.loads(summary.read_text())
         success[data["round"]] = {row["task"]: row["success_rate"] for row in data["per_task"]}
     if not success:
         raise AdaDemoError(f"{run_dir} has no evaluation results yet (eval/round-*/eval_summary.json)")
-    eps = read_episode_metadata(run_dir / "dataset")
+    eps = read_episode_metadata(dataset_root)
     rounds = sorted(success)
     demos = pd.DataFrame(
-        {r: [int(((eps.task == t) & (eps["adademo/round"] <= r)).sum()) for t in tasks] for r in rounds},
+        {
+            r: [int(((eps.task == t) & (eps["adademo/round"] <= base + r)).sum()) for t in tasks]
+            for r in rounds
+        },
         index=tasks,
     )
+    ledger = pd.DataFrame(read_ledger(dataset_root))
+    if len(ledger):
+        ledger = ledger[ledger["round"] > base].assign(round=lambda d: d["round"] - base)
     label = f"{settings['strategy']} + {settings['sampler']} sampler"
     return RunResults(
         run_dir.name,
@@ -60,7 +84,8 @@ def load_run(run_dir: Path) -> RunResults:
         tasks,
         pd.DataFrame(success).loc[tasks + ["average"], rounds],
         demos,
-        pd.DataFrame(read_ledger(run_dir / "dataset")),
+        ledger,
+        describe_start(begun),
     )
 
 
@@ -80,7 +105,10 @@ def markdown_tables(run: RunResults) -> str:
         ]
     )
     header = ["task", *(f"round {r}: SR % (demos)" for r in rounds)]
-    lines = [f"### {run.name} — {run.label}", "", table(header, rows, aligned=False)]
+    lines = [f"### {run.name} — {run.label}", ""]
+    if run.started_from:
+        lines += [run.started_from, ""]
+    lines += [table(header, rows, aligned=False)]
     if len(run.ledger):
         rows = [
             [

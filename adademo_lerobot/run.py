@@ -4,6 +4,10 @@
     for round i = 1..R:  expand (strategy, E_i, CAP_i) -> retrain (from scratch or fine-tune) -> evaluate
     report
 
+With `--dataset.repo_id` (and optionally `--policy.path`) the run starts from what the user has instead: their
+dataset (a copy, by default) replaces the collection and their checkpoint the round-0 training; the dataset's
+earlier rounds are kept and the run's round i is the dataset's round base + i (`adademo_lerobot.start`).
+
 Every stage is itself resumable (collection, training checkpoints, the expansion journal) and the run marks
 finished stages in `RUN_DIR/run_state.json`, so rerunning the same command after an interruption continues
 where it stopped without redoing finished stages. The fixed evaluation set (seeds under the "eval" key) is the
@@ -37,14 +41,22 @@ from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.evaluation import format_success_table, success_table, write_eval_outputs
 from adademo_lerobot.executors import RayArgs, check_executor_args, make_executor
-from adademo_lerobot.expand import run_expand
+from adademo_lerobot.expand import next_round, run_expand
 from adademo_lerobot.files import atomic_write_text
 from adademo_lerobot.fixed_set import evaluate_fixed_set
 from adademo_lerobot.ledger import ledger_rounds
 from adademo_lerobot.policy import check_policy
 from adademo_lerobot.samplers import make_sampling_scheme
+from adademo_lerobot.start import (
+    Start,
+    StartDatasetArgs,
+    StartPolicyArgs,
+    check_start,
+    combined_digest,
+    prepare_dataset,
+)
 from adademo_lerobot.strategies import STRATEGIES
-from adademo_lerobot.suites import SuiteConfig, make_suite
+from adademo_lerobot.suites import SuiteConfig, make_suite, suite_config_from_dict
 from adademo_lerobot.train import AdaDemoTrainConfig, TrainDatasetConfig, find_last_checkpoint, train
 
 STEPS_SCHEDULES = ("constant", "proportional")
@@ -85,6 +97,9 @@ class RunEvalArgs:
 @dataclass
 class RunConfig:
     run_dir: str | None = None
+    # Start from an existing dataset (no round-0 collection) and, optionally, checkpoint (no round-0 training).
+    dataset: StartDatasetArgs = field(default_factory=StartDatasetArgs)
+    policy: StartPolicyArgs = field(default_factory=StartPolicyArgs)
     suite: SuiteConfig = field(default_factory=default_suite)
     collector: CollectorConfig = field(default_factory=default_collector)
     # E0: demos per task in the initial dataset.
@@ -138,8 +153,22 @@ def validate(cfg: RunConfig) -> None:
         )
     if cfg.strategy == "budgeted" and not cfg.budget:
         raise AdaDemoError("--strategy=budgeted needs --budget=[B1,B2,...] (demonstrations per round)")
-    if cfg.train.policy is None:
-        raise AdaDemoError("the recipe needs train.policy (e.g. --train.policy.type=act)")
+    if cfg.dataset.root is not None and cfg.dataset.repo_id is None:
+        cfg.dataset.repo_id = f"local/{Path(cfg.dataset.root).name}"
+    if cfg.policy.path is not None and cfg.dataset.repo_id is None:
+        raise AdaDemoError(
+            "--policy.path needs the dataset to continue: --dataset.repo_id=USER/NAME (a hub dataset) or "
+            "--dataset.root=FOLDER (a local one)"
+        )
+    if cfg.dataset.revision is not None and cfg.dataset.root is not None:
+        raise AdaDemoError(
+            "--dataset.revision picks a hub revision; a local --dataset.root has none: drop one"
+        )
+    if cfg.train.policy is None and cfg.policy.path is None:
+        raise AdaDemoError(
+            "the recipe needs train.policy (e.g. --train.policy.type=act), or start from a checkpoint with "
+            "--policy.path=CKPT"
+        )
     if cfg.train.mode not in ("scratch", "finetune"):
         raise AdaDemoError(f"--train.mode must be scratch or finetune, got {cfg.train.mode!r}")
     if cfg.train.steps_schedule not in STEPS_SCHEDULES:
@@ -203,6 +232,7 @@ FIXED_SETTINGS = (
     "sampler_alpha",
     "sampler",
     "policy_type",
+    "start",
 )
 
 
@@ -220,38 +250,78 @@ def run_settings(cfg: RunConfig, suite: dict) -> dict:
         "demos_per_task": cfg.demos_per_task,
         "budget": cfg.budget,
         "sampler": cfg.train.sampler,
-        "policy_type": cfg.train.policy.type,
+        "policy_type": cfg.train.policy.type if cfg.train.policy else None,
         "train_mode": cfg.train.mode,
         "min_task_weight": cfg.train.min_task_weight,
         "sampler_alpha": cfg.train.sampler_alpha,
+        "start": None
+        if cfg.dataset.repo_id is None
+        else {
+            "dataset": {k: getattr(cfg.dataset, k) for k in ("repo_id", "root", "revision", "copy")},
+            "policy": {k: getattr(cfg.policy, k) for k in ("path", "revision")},
+        },
     }
+
+
+def saved_stage(run_dir: Path, name: str) -> dict | None:
+    """A finished stage of an earlier invocation of this run (read only)."""
+    path = run_dir / "run_state.json"
+    if not path.exists():
+        return None
+    state = json.loads(path.read_text())
+    return {**state["done"][name], "settings": state["settings"]} if name in state["done"] else None
 
 
 def run(cfg: RunConfig) -> Path:
     validate(cfg)
     run_dir = Path(cfg.run_dir)
-    suite = make_suite(cfg.suite)
+    start, started = None, saved_stage(run_dir, "start")
+    if cfg.dataset.repo_id is not None and started is None:  # checked before anything is written
+        recipe_type = cfg.train.policy.type if cfg.train.policy else None
+        start = check_start(cfg.dataset, cfg.policy, cfg.suite, cfg.suite == default_suite(), recipe_type)
+        suite_config = start.suite_config
+    elif started is not None:
+        suite_config = suite_config_from_dict(started["settings"]["suite"])
+    else:
+        suite_config = cfg.suite
+    suite = make_suite(suite_config)
     cfg.collector.validate(suite)
     make_sampling_scheme(
         cfg.train.sampler, cfg.train.min_task_weight, len(suite.tasks), cfg.train.sampler_alpha
     )
     run_dir.mkdir(parents=True, exist_ok=True)
     state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()))
-    dataset_root = run_dir / "dataset"
-    repo_id = f"local/{run_dir.name}"
     episodes = Episodes(cfg, suite)  # the executor, made when a stage first needs it, kept for the whole run
     try:
-        state.stage("collect", collect_initial, cfg, suite, episodes, dataset_root, repo_id)
-        checkpoint = Path(
-            state.stage("train-0", train_round, cfg, run_dir, dataset_root, repo_id, 0, None)["result"]
-        )
-        state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
-        for i in range(1, cfg.rounds + 1):
-            state.stage(f"expand-{i}", expand_round, cfg, episodes, dataset_root, repo_id, checkpoint, i)
+        if cfg.dataset.repo_id is None:
+            dataset_root, repo_id, base, checkpoint = run_dir / "dataset", f"local/{run_dir.name}", 0, None
+            state.stage("collect", collect_initial, cfg, suite, episodes, dataset_root, repo_id)
+        else:
+            begun = state.stage("start", begin_from, cfg, start, run_dir)["result"]
+            dataset_root, repo_id, base = (
+                Path(begun["dataset_root"]),
+                cfg.dataset.repo_id,
+                begun["base_round"],
+            )
+            checkpoint = Path(begun["checkpoint"]) if begun["checkpoint"] else None
+            if cfg.train.policy is None:  # no policy in the recipe: later rounds train the checkpoint's own
+                cfg.train.policy = PreTrainedConfig.from_pretrained(checkpoint)
+                cfg.train.policy.pretrained_path = None
+        if checkpoint is None:
             checkpoint = Path(
-                state.stage(f"train-{i}", train_round, cfg, run_dir, dataset_root, repo_id, i, checkpoint)[
+                state.stage("train-0", train_round, cfg, run_dir, dataset_root, repo_id, 0, None, base)[
                     "result"
                 ]
+            )
+        state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
+        for i in range(1, cfg.rounds + 1):
+            state.stage(
+                f"expand-{i}", expand_round, cfg, episodes, dataset_root, repo_id, checkpoint, i, base
+            )
+            checkpoint = Path(
+                state.stage(
+                    f"train-{i}", train_round, cfg, run_dir, dataset_root, repo_id, i, checkpoint, base
+                )["result"]
             )
             state.stage(f"eval-{i}", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, i)
     finally:
@@ -291,6 +361,29 @@ class Episodes:
             self._executor.close()
 
 
+def begin_from(cfg: RunConfig, start: Start, run_dir: Path) -> dict:
+    """The run's dataset (a copy of the user's, or theirs in place), the round its history ends at, the given
+    checkpoint, and where all of it came from (recorded in run_state.json and origin.json)."""
+    root, digests = prepare_dataset(start, cfg.dataset.copy, run_dir / "dataset")
+    origin = {**start.origin(cfg.dataset, cfg.policy), "files": digests}
+    atomic_write_text(run_dir / "origin.json", json.dumps(origin, indent=2))
+    base = next_round(root) - 1
+    eps = read_episode_metadata(root)
+    print(
+        f"starting from {cfg.dataset.repo_id}: {len(eps)} episodes ("
+        + ", ".join(f"{t} {n}" for t, n in eps.groupby("task").size().items())
+        + f"), rounds 0..{base}; "
+        + (f"checkpoint {start.checkpoint}" if start.checkpoint else "round 0 trains a policy on it")
+    )
+    return {
+        "dataset_root": str(root),
+        "base_round": base,
+        "checkpoint": str(start.checkpoint) if start.checkpoint else None,
+        "origin": {k: v for k, v in origin.items() if k != "files"},
+        "dataset_digest": combined_digest(digests),
+    }
+
+
 def collect_initial(cfg: RunConfig, suite, episodes: Episodes, dataset_root: Path, repo_id: str) -> dict:
     if not has_dataset(dataset_root):
         DemoDataset.check_new_root(dataset_root)
@@ -314,8 +407,16 @@ def collect_initial(cfg: RunConfig, suite, episodes: Episodes, dataset_root: Pat
 
 
 def train_round(
-    cfg: RunConfig, run_dir: Path, dataset_root: Path, repo_id: str, i: int, previous: Path | None
+    cfg: RunConfig,
+    run_dir: Path,
+    dataset_root: Path,
+    repo_id: str,
+    i: int,
+    previous: Path | None,
+    base: int = 0,
 ) -> str:
+    """Round i's policy; `base`: the last round of the dataset's history before the run (its size sets the
+    proportional schedule)."""
     out = run_dir / "train" / f"round-{i}"
     resume = find_last_checkpoint(out) is not None
     if out.exists() and not resume:
@@ -330,7 +431,7 @@ def train_round(
         steps = cfg.train.finetune_steps
     elif i > 0 and cfg.train.steps_schedule == "proportional":
         eps = read_episode_metadata(dataset_root)
-        initial = int((eps["adademo/round"] == 0).sum())
+        initial = int((eps["adademo/round"] <= base).sum())
         steps = min(cfg.train.max_steps, round(cfg.train.steps * len(eps) / max(initial, 1)))
     train_cfg = AdaDemoTrainConfig(
         dataset=TrainDatasetConfig(repo_id=repo_id, root=str(dataset_root)),
@@ -373,12 +474,20 @@ def evaluate_round(
 
 
 def expand_round(
-    cfg: RunConfig, episodes: Episodes, dataset_root: Path, repo_id: str, checkpoint: Path, i: int
+    cfg: RunConfig,
+    episodes: Episodes,
+    dataset_root: Path,
+    repo_id: str,
+    checkpoint: Path,
+    i: int,
+    base: int = 0,
 ) -> dict:
-    """Expansion round i of the run: the run's round number is the one truth handed to `run_expand`."""
-    if i in ledger_rounds(dataset_root):  # killed after the round finished, before the run marked it done
+    """The run's expansion round i, the dataset's round base + i (after its earlier rounds): the one truth
+    handed to `run_expand`."""
+    r = base + i
+    if r in ledger_rounds(dataset_root):  # killed after the round finished, before the run marked it done
         eps = read_episode_metadata(dataset_root)
-        return {"demos_added": eps[eps["adademo/round"] == i].groupby("task").size().astype(int).to_dict()}
+        return {"demos_added": eps[eps["adademo/round"] == r].groupby("task").size().astype(int).to_dict()}
     expand_cfg = ExpandConfig(
         dataset=DatasetArgs(repo_id=repo_id, root=str(dataset_root)),
         policy=PolicyPathArgs(path=str(checkpoint)),
@@ -396,7 +505,7 @@ def expand_round(
         torch_threads=cfg.train.torch_threads,
         commit_every=cfg.commit_every,
     )
-    records = run_expand(expand_cfg, round_index=i, executor=episodes.get())
+    records = run_expand(expand_cfg, round_index=r, executor=episodes.get())
     return {"demos_added": {r.task: r.demos_added for r in records}}
 
 

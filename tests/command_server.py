@@ -25,12 +25,14 @@ def preload() -> None:
     import lerobot.datasets.lerobot_dataset  # noqa: F401
     import lerobot.policies  # noqa: F401
     import lerobot.scripts.lerobot_eval  # noqa: F401
+    import lerobot.scripts.lerobot_record  # noqa: F401
     import metaworld  # noqa: F401
     import torch  # noqa: F401
 
     import adademo_lerobot.collect  # noqa: F401
     import adademo_lerobot.expand  # noqa: F401
     import adademo_lerobot.fixed_set  # noqa: F401
+    import adademo_lerobot.record  # noqa: F401
     import adademo_lerobot.report  # noqa: F401
     import adademo_lerobot.run  # noqa: F401
     import adademo_lerobot.train  # noqa: F401

@@ -6,11 +6,14 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
+# LeRobot's Robot and Teleoperator make a calibration folder under this on creation: not in the user's home.
+os.environ.setdefault("HF_LEROBOT_CALIBRATION", tempfile.mkdtemp(prefix="adademo-tests-calibration-"))
 BIN = Path(sys.executable).parent
 
 

@@ -50,6 +50,7 @@ LAYERS = [
     ("adademo_lerobot.report", 4),
     ("adademo_lerobot.hub", 4),
     ("adademo_lerobot.record", 4),
+    ("adademo_lerobot.start", 4),
     ("adademo_lerobot.lerobot_plugins", 4),
     ("adademo_lerobot.fixed_set", 4),
     # the loop

@@ -11,19 +11,24 @@ from adademo_lerobot.collectors.base import SimulatedExpertCollector
 from adademo_lerobot.suites.metaworld import RAW_OBS_DIM
 
 
+def scripted_policy(task: str) -> Callable[[dict], np.ndarray]:
+    """MetaWorld's shipped expert for `task`, from an env observation (its `environment_state`) to an action."""
+    from lerobot.envs.metaworld import TASK_POLICY_MAPPING
+
+    policy = TASK_POLICY_MAPPING[task]()
+
+    def act(observation: dict) -> np.ndarray:
+        # A copy: some scripted policies edit the observation in place (door-open shifts the handle x).
+        raw_obs = np.array(observation["environment_state"][:RAW_OBS_DIM], dtype=np.float64, copy=True)
+        with warnings.catch_warnings():  # "Constant(s) may be too high": the env clips, as intended
+            warnings.simplefilter("ignore")
+            return policy.get_action(raw_obs)
+
+    return act
+
+
 class MetaWorldScriptedExpert(SimulatedExpertCollector):
     name = "metaworld-scripted"
 
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]:
-        from lerobot.envs.metaworld import TASK_POLICY_MAPPING
-
-        policy = TASK_POLICY_MAPPING[task]()
-
-        def act(observation: dict) -> np.ndarray:
-            # A copy: some scripted policies edit the observation in place (door-open shifts the handle x).
-            raw_obs = np.array(observation["environment_state"][:RAW_OBS_DIM], dtype=np.float64, copy=True)
-            with warnings.catch_warnings():  # "Constant(s) may be too high": the env clips, as intended
-                warnings.simplefilter("ignore")
-                return policy.get_action(raw_obs)
-
-        return act
+        return scripted_policy(task)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.base import TaskSuite
 
 
@@ -23,3 +24,28 @@ def dataset_features(suite: TaskSuite) -> dict[str, dict]:
             "names": ["height", "width", "channels"],
         }
     return features
+
+
+def check_features_match(found: dict[str, dict], suite: TaskSuite, what: str = "the dataset") -> None:
+    """`found` (a dataset's info.json features) has the suite's observation and action features, same shapes,
+    and no other observation: new demos from the suite's envs must fit beside its episodes."""
+    expected = dataset_features(suite)
+    problems = []
+    for key, ft in expected.items():
+        if key not in found:
+            problems.append(f"{key} is missing")
+        elif tuple(found[key]["shape"]) != tuple(ft["shape"]):
+            problems.append(
+                f"{key} has shape {tuple(found[key]['shape'])}, the suite's is {tuple(ft['shape'])}"
+            )
+    problems += [
+        f"{k} is not a feature of the suite"
+        for k in found
+        if k.startswith("observation.") and k not in expected
+    ]
+    if problems:
+        raise AdaDemoError(
+            f"{what}'s features do not match the suite ({suite.name}: {','.join(suite.tasks)}): "
+            + "; ".join(problems)
+            + " (pass the suite the dataset was recorded with: --suite.type=... --suite.tasks=...)"
+        )

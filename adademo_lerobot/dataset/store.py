@@ -47,7 +47,7 @@ from adademo_lerobot.dataset.metadata import (
     load_suite_config,
     read_episode_metadata,
 )
-from adademo_lerobot.dataset.video import video_backend
+from adademo_lerobot.dataset.video import quiet_video_encoder, video_backend
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.files import atomic_write_json, atomic_write_text, check_writable_location
 from adademo_lerobot.patching import temporarily_set
@@ -208,10 +208,10 @@ def _no_image_embedding_without_images():
 class DemoDataset:
     """Create or append to an adademo LeRobot dataset; every append is one crash-safe transaction."""
 
-    def __init__(self, repo_id: str, root: Path, suite_config: SuiteConfig):
+    def __init__(self, repo_id: str, root: Path, suite_config: SuiteConfig | None):
         self.repo_id = repo_id
         self.root = Path(root)
-        self.suite_config = suite_config
+        self.suite_config = suite_config  # None: a dataset recorded on a robot (adademo-record)
 
     @staticmethod
     def check_new_root(root: Path) -> None:
@@ -234,20 +234,49 @@ class DemoDataset:
         recover_interrupted_write(root)
         return cls(repo_id, root, load_suite_config(root, suite_override))
 
+    @classmethod
+    def open_recorded(cls, repo_id: str, root: str | Path) -> DemoDataset:
+        """An existing dataset recorded on a robot (no suite), for appending what adademo-record records."""
+        root = Path(root)
+        if not os.access(root, os.W_OK):
+            raise AdaDemoError(f"dataset root {root} is not writable")
+        recover_interrupted_write(root)
+        return cls(repo_id, root, None)
+
     def episodes(self) -> pd.DataFrame:
         return read_episode_metadata(self.root)
 
     def append(
         self, suite: TaskSuite, demos: Iterable[Demonstration], round_index: int, source: str, collector: str
     ) -> list[int]:
-        """Write `demos` as new episodes in one transaction; returns their episode indices."""
+        """Write `demos` as new episodes in one transaction (creating the dataset on first use); returns their
+        episode indices."""
+        return self._append(list(demos), round_index, source, collector, suite.name, suite)
+
+    def append_recorded(
+        self, robot_type: str, demos: Iterable[Demonstration], round_index: int, source: str, collector: str
+    ) -> list[int]:
+        """Write episodes recorded on a robot (the dataset exists) in one transaction; returns their indices."""
+        return self._append(list(demos), round_index, source, collector, robot_type, None)
+
+    def _append(
+        self,
+        demos: list[Demonstration],
+        round_index: int,
+        source: str,
+        collector: str,
+        producer: str,
+        suite: TaskSuite | None,
+    ) -> list[int]:
         import datasets
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-        demos = list(demos)
         if not demos:
             return []
+        quiet_video_encoder()
         creating = not has_dataset(self.root)
+        if creating and suite is None:
+            raise AdaDemoError(f"no LeRobot dataset at {self.root} to add the recorded episodes to")
         if creating:
             # A brand-new dataset is built in a sibling folder and renamed into place once it is whole.
             write_root = self.root.with_name(f".{self.root.name}.adademo-creating")
@@ -263,10 +292,10 @@ class DemoDataset:
             atomic_write_text(write_root / SUITE_FILE, suite.config.to_json())
         else:
             adopt = _episode_files_without_columns(self.root)
-            suite_missing = not (self.root / SUITE_FILE).exists()
+            suite_missing = suite is not None and not (self.root / SUITE_FILE).exists()
             _begin_write(self.root, [*REWRITTEN_META, *(str(f.relative_to(self.root)) for f in adopt)])
             for path in adopt:  # episodes that arrived without our columns (LeRobot's tools drop them)
-                _add_adademo_columns(path, suite.name)
+                _add_adademo_columns(path, producer)
             if suite_missing:  # LeRobot's tools copy no extra files: keep the (rebuilt) suite from now on
                 atomic_write_text(self.root / SUITE_FILE, suite.config.to_json())
             with _last_episode_row_only(self.root):
@@ -285,7 +314,7 @@ class DemoDataset:
                     COL_ROUND: int(round_index),
                     COL_SOURCE: source,
                     COL_COLLECTOR: collector,
-                    COL_SUITE: suite.name,
+                    COL_SUITE: producer,
                 }
                 with _saving_extra_columns(dataset, columns):
                     dataset.save_episode()

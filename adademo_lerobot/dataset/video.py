@@ -1,4 +1,4 @@
-"""The video decoder LeRobot should use, chosen quietly.
+"""The video decoder LeRobot should use, chosen quietly, and a quiet video encoder.
 
 LeRobot's own default (`get_safe_default_video_backend`) logs a long traceback whenever torchcodec is installed
 but cannot load (no system FFmpeg, as on a fresh Debian machine) and then falls back to PyAV. We make the same
@@ -8,6 +8,7 @@ choice once, without the noise, and pass it to every dataset we open or create.
 from __future__ import annotations
 
 import functools
+import os
 
 
 @functools.cache
@@ -17,3 +18,9 @@ def video_backend() -> str:
     except (ImportError, OSError, RuntimeError):
         return "pyav"
     return "torchcodec"
+
+
+def quiet_video_encoder() -> None:
+    """SVT-AV1 (LeRobot's default video codec) prints ~25 lines of settings per episode it encodes; keep its
+    errors only, unless the user chose a level."""
+    os.environ.setdefault("SVT_LOG", "1")

@@ -1,0 +1,16 @@
+"""`--teleop.type=adademo_scripted`: MetaWorld's scripted expert as a LeRobot Teleoperator for `adademo_sim`
+(config; the teleoperator is `adademo_scripted.AdademoScripted`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from lerobot.teleoperators.config import TeleoperatorConfig
+
+
+@TeleoperatorConfig.register_subclass("adademo_scripted")
+@dataclass
+class AdademoScriptedConfig(TeleoperatorConfig):
+    # Frames recorded after the scene reports success before the episode is marked over (as a person lets a
+    # demonstration settle before pressing the key).
+    post_success_frames: int = 5

@@ -1,0 +1,582 @@
+"""`adademo-record`: one AdaDemo round on a robot, with a person in Algorithm 1's inner loop.
+
+    adademo-record --robot.type=so101_follower --robot.port=/dev/ttyACM0 --robot.cameras=... \\
+        --teleop.type=so101_leader --teleop.port=/dev/ttyACM1 --policy.path=CKPT \\
+        --dataset.repo_id=USER/NAME --dataset.root=FOLDER --target_successes=5 --max_demos_per_task=10
+
+For every task of the dataset (or `--tasks`), until E successes or CAP demonstrations:
+  1. the person sets up a new scene and the policy runs an episode (the person ends it early with n);
+  2. the person marks it a success (s) or a failure (f);
+  3. after a failure the person puts the scene back as it was when that episode started (its first camera frame is
+     saved to look at, its initial joint positions are printed) and teleoperates a demonstration from there, which
+     is appended to the dataset with its provenance (n keeps it, r records it again).
+Before the first episode, a plan from each task's latest success rate (the paper's N_k = E/SR_k - E) says how many
+demonstrations each task will likely need and how long that takes at the dataset's episode length (principle A).
+
+Keys (LeRobot's key listener, as in lerobot-record): n or Right = next, r or Left = redo, s = success,
+f = failure, q or Esc = stop. A simulated robot (`adademo_sim`) sets its scenes itself, and a teleoperator that
+reports LeRobot's teleop events (`adademo_scripted`) answers for the person.
+
+The round is journaled as adademo-expand's: every policy episode (success, length, initial joints, first frames)
+and every demonstration. A stop (q, Ctrl-C) or a disconnect loses at most the episode in progress; the same command
+resumes the round, and no failure gets two demonstrations. The ledger records the person's time.
+"""
+
+from __future__ import annotations
+
+import queue
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from lerobot.robots.config import RobotConfig
+from lerobot.teleoperators.config import TeleoperatorConfig
+
+from adademo_lerobot.configs import PolicyPathArgs
+from adademo_lerobot.dataset.check import check_dataset_integrity
+from adademo_lerobot.dataset.layout import ADADEMO_DIR
+from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata, read_info
+from adademo_lerobot.dataset.store import DemoDataset
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.expand import next_round
+from adademo_lerobot.ledger import RoundJournal, append_ledger
+from adademo_lerobot.records import Demonstration, TaskRoundRecord
+from adademo_lerobot.seeds import derive_seed
+from adademo_lerobot.strategies.budgeted import failure_mean, prior_from_earlier_rounds
+from adademo_lerobot.tables import table
+
+JUDGES = ("auto", "keys", "teleop")
+SOURCE = "human"
+KEYS_HELP = "n/Right = next, r/Left = redo, s = success, f = failure, q/Esc = stop"
+
+
+def register_devices() -> None:
+    """LeRobot's robots and teleoperators (the set lerobot-record knows) and installed plugins, by type name."""
+    import lerobot.scripts.lerobot_record  # noqa: F401  (imports every built-in robot/teleoperator config)
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()
+
+
+@dataclass
+class RecordDatasetArgs:
+    repo_id: str = "local/robot"
+    # The dataset the policy was trained on (recorded with this robot); new episodes are appended to it.
+    root: str | None = None
+    # The longest a policy episode or a demonstration may run, in seconds (the person usually ends it sooner).
+    episode_time_s: float = 60.0
+
+
+@dataclass
+class RecordConfig:
+    robot: RobotConfig | None = None
+    teleop: TeleoperatorConfig | None = None
+    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+    dataset: RecordDatasetArgs = field(default_factory=RecordDatasetArgs)
+    # Tasks of this round, comma-separated (task strings of the dataset); default: every task of the dataset.
+    tasks: str | None = None
+    # E: policy successes that end a task's round.
+    target_successes: int = 5
+    # CAP: at most this many demonstrations per task in the round.
+    max_demos_per_task: int = 10
+    # Bound on policy episodes per task (default 2 x (E + CAP)).
+    max_eval_episodes_per_task: int | None = None
+    # Demonstrations tried per failure before moving on (each redo counts).
+    max_attempts: int = 3
+    # Who marks success and ends episodes: `keys` (the person), `teleop` (the teleoperator's events, e.g.
+    # adademo_scripted), `auto` (teleop if it reports events, else keys).
+    judge: str = "auto"
+    seed: int = 0
+    device: str = "cpu"
+
+
+class StopRecording(Exception):  # noqa: N818  (a request, not an error)
+    """The person asked to stop (q / Esc)."""
+
+
+class KeyboardPerson:
+    """The person at the robot, answering on the keyboard through LeRobot's key listener."""
+
+    def __init__(self):
+        from lerobot.utils.keyboard_input import create_key_listener
+
+        self.keys: queue.Queue[str] = queue.Queue()
+        self.listener = create_key_listener(self.keys.put, controls_help=KEYS_HELP)
+        if self.listener is None:
+            raise AdaDemoError(
+                "adademo-record needs the person's keys and gets none here (no display, and stdin is not a "
+                "terminal): run it in an interactive terminal, or with a teleoperator that reports success "
+                "(--judge=teleop)"
+            )
+
+    def _wait(self, prompt: str, answers: dict[str, object]):
+        print(f"{prompt}  [{KEYS_HELP}]", flush=True)
+        while True:
+            key = self.keys.get().lower()
+            if key in ("q", "esc"):
+                raise StopRecording
+            if key in answers:
+                return answers[key]
+
+    def ready(self, prompt: str) -> None:
+        self._wait(prompt, {"n": True, "right": True, "enter": True})
+
+    def episode_over(self) -> bool:
+        over = False
+        while not self.keys.empty():
+            key = self.keys.get_nowait().lower()
+            if key in ("q", "esc"):
+                raise StopRecording
+            over |= key in ("n", "right")
+        return over
+
+    def judge(self, task: str) -> bool:
+        return self._wait(f"{task}: did the policy succeed? (s / f)", {"s": True, "f": False})
+
+    def keep_demo(self, task: str) -> bool:
+        return self._wait(f"{task}: keep this demonstration? (n keeps it, r records it again)", {
+            "n": True, "right": True, "r": False, "left": False,
+        })  # fmt: skip
+
+    def close(self) -> None:
+        self.listener.stop()
+
+
+class TeleopPerson:
+    """The teleoperator answers for the person through LeRobot's teleop events (success, end of episode)."""
+
+    def __init__(self, teleop):
+        self.teleop = teleop
+
+    def _events(self) -> dict:
+        from lerobot.teleoperators.utils import TeleopEvents
+
+        events = self.teleop.get_teleop_events()
+        return {e.value: bool(events.get(e, False)) for e in TeleopEvents}
+
+    def ready(self, prompt: str) -> None:
+        print(prompt, flush=True)
+
+    def episode_over(self) -> bool:
+        return self._events()["terminate_episode"]
+
+    def judge(self, task: str) -> bool:
+        return self._events()["success"]
+
+    def keep_demo(self, task: str) -> bool:
+        return self._events()["success"]
+
+    def close(self) -> None:
+        pass
+
+
+def make_person(judge: str, teleop):
+    if judge == "teleop" or (judge == "auto" and hasattr(teleop, "get_teleop_events")):
+        if not hasattr(teleop, "get_teleop_events"):
+            raise AdaDemoError(
+                f"--judge=teleop: the {teleop.name} teleoperator reports no events; use --judge=keys"
+            )
+        return TeleopPerson(teleop)
+    return KeyboardPerson()
+
+
+def validate(cfg: RecordConfig) -> None:
+    if cfg.robot is None:
+        raise AdaDemoError("--robot.type is required (the robot to record with, e.g. so101_follower)")
+    if cfg.teleop is None:
+        raise AdaDemoError("--teleop.type is required (the person's teleoperator, e.g. so101_leader)")
+    if cfg.policy.path is None:
+        raise AdaDemoError("--policy.path is required (the policy whose failures the round answers)")
+    if cfg.dataset.root is None or not has_dataset(cfg.dataset.root):
+        raise AdaDemoError(
+            f"no LeRobot dataset at --dataset.root={cfg.dataset.root} (the dataset the policy was trained on, "
+            "recorded with this robot, e.g. by lerobot-record)"
+        )
+    for flag in ("target_successes", "max_demos_per_task", "max_attempts"):
+        if getattr(cfg, flag) < 1:
+            raise AdaDemoError(f"--{flag} must be >= 1, got {getattr(cfg, flag)}")
+    if cfg.max_eval_episodes_per_task is not None and cfg.max_eval_episodes_per_task < 1:
+        raise AdaDemoError(f"--max_eval_episodes_per_task must be >= 1, got {cfg.max_eval_episodes_per_task}")
+    if cfg.dataset.episode_time_s <= 0:
+        raise AdaDemoError(f"--dataset.episode_time_s must be > 0, got {cfg.dataset.episode_time_s}")
+    if cfg.judge not in JUDGES:
+        raise AdaDemoError(f"--judge must be one of {', '.join(JUDGES)}, got {cfg.judge!r}")
+
+
+def robot_features(robot, use_video: bool) -> dict[str, dict]:
+    """The dataset features of what the robot reads and takes (as lerobot-record builds them)."""
+    from lerobot.utils.constants import ACTION, OBS_STR
+    from lerobot.utils.feature_utils import hw_to_dataset_features
+
+    return {
+        **hw_to_dataset_features(robot.action_features, ACTION),
+        **hw_to_dataset_features(robot.observation_features, OBS_STR, use_video),
+    }
+
+
+def check_recorded_with(root: Path, robot, features: dict[str, dict]) -> None:
+    """The dataset was recorded with this robot: same robot type, same features (names and shapes)."""
+    info = read_info(root)
+    if info.get("robot_type") != robot.robot_type:
+        raise AdaDemoError(
+            f"{root} was recorded with robot {info.get('robot_type')!r}, not {robot.robot_type!r}: record its "
+            "rounds with the robot it was recorded with"
+        )
+    found = info.get("features", {})
+    problems = []
+    for key, ft in features.items():
+        if key not in found:
+            problems.append(f"{key} is not in the dataset")
+        elif tuple(found[key]["shape"]) != tuple(ft["shape"]) or found[key].get("names") != ft.get("names"):
+            problems.append(
+                f"{key} differs (dataset {tuple(found[key]['shape'])}, robot {tuple(ft['shape'])})"
+            )
+    problems += [
+        f"{k} is not read by the robot" for k in found if k.startswith("observation.") and k not in features
+    ]
+    if problems:
+        raise AdaDemoError(
+            f"{root} was recorded with another {robot.robot_type} setup: " + "; ".join(problems)
+        )
+
+
+def predicted_demos(rate: float | None, target: int, cap: int) -> int:
+    """The paper's N_k = E / SR_k - E, capped (CAP when the task has never succeeded or was never evaluated)."""
+    if rate is None or rate <= 0:
+        return cap
+    return min(cap, int(np.ceil(target / rate - target)))
+
+
+def plan_lines(root: Path, round_index: int, tasks: list[str], cfg: RecordConfig) -> list[str]:
+    """Principle A before the person starts: predicted demos and time per task from the latest success rates."""
+    eps = read_episode_metadata(root)
+    fps = read_info(root)["fps"]
+    rows, total_s = [], 0.0
+    for task in tasks:
+        alpha, beta = prior_from_earlier_rounds(root, round_index, task)
+        seen = alpha + beta > 2
+        rate = 1 - failure_mean((alpha, beta)) if seen else None
+        n = predicted_demos(rate, cfg.target_successes, cfg.max_demos_per_task)
+        lengths = eps.loc[eps.task == task, "length"]
+        episode_s = float(lengths.mean()) / fps if len(lengths) else cfg.dataset.episode_time_s
+        # E successes and about N failures (each answered by one demonstration) at the recorded episode length.
+        seconds = (cfg.target_successes + 2 * n) * episode_s
+        total_s += seconds
+        sr = f"{100 * rate:.0f}%" if seen else "unknown (no round yet)"
+        rows.append([task, sr, n, f"{episode_s:.1f}", f"{seconds / 60:.1f}"])
+    return [
+        f"round {round_index} plan (E={cfg.target_successes}, CAP={cfg.max_demos_per_task}): demos each task will "
+        "likely need, N = E/SR - E, and the time at the recorded episode length",
+        table(["task", "latest success", "predicted demos", "episode s", "minutes"], rows),
+        f"about {total_s / 60:.0f} minutes of episodes, plus resetting scenes",
+    ]
+
+
+class Session:
+    """The connected robot, teleoperator, policy and person of one round, and its journal."""
+
+    def __init__(self, cfg: RecordConfig, robot, teleop, person, features: dict, round_index: int):
+        from lerobot.common.control_utils import predict_action
+        from lerobot.policies.utils import make_robot_action
+        from lerobot.utils.constants import ACTION, OBS_STR
+        from lerobot.utils.feature_utils import build_dataset_frame
+
+        from adademo_lerobot.policy import load_policy
+
+        self.cfg, self.robot, self.teleop, self.person = cfg, robot, teleop, person
+        self.features, self.round_index = features, round_index
+        self.root = Path(cfg.dataset.root)
+        self.dataset = DemoDataset.open_recorded(cfg.dataset.repo_id, self.root)
+        self.journal = RoundJournal(self.root, round_index)
+        self.loaded = load_policy(cfg.policy.path, cfg.device)
+        self.fps = read_info(self.root)["fps"]
+        self.max_steps = max(1, round(cfg.dataset.episode_time_s * self.fps))
+        self.simulated = getattr(robot, "simulated", False)
+        self.state_names = features[f"{OBS_STR}.state"]["names"]
+        self.cameras = [
+            k.removeprefix(f"{OBS_STR}.images.") for k in features if k.startswith(f"{OBS_STR}.images.")
+        ]
+        self._predict, self._make_action, self._frame = predict_action, make_robot_action, build_dataset_frame
+        self._obs, self._action = OBS_STR, ACTION
+
+    # -- one step and one episode ----------------------------------------------------------------------------
+    def _pace(self, started: float) -> None:
+        if not self.simulated:  # a real robot runs at the dataset's rate; a simulated one as fast as it can
+            from lerobot.utils.robot_utils import precise_sleep
+
+            precise_sleep(max(0.0, 1 / self.fps - (time.perf_counter() - started)))
+
+    def _joints(self, obs: dict) -> list[float]:
+        return [float(obs[name]) for name in self.state_names]
+
+    def _save_first_frames(self, obs: dict, task: str, seed: int) -> dict[str, str]:
+        from PIL import Image
+
+        paths = {}
+        folder = self.root / ADADEMO_DIR / "episode_starts" / f"round-{self.round_index:03d}"
+        for camera in self.cameras:
+            rel = folder.relative_to(self.root) / f"{slug(task)}-{seed}-{camera}.png"
+            (self.root / rel).parent.mkdir(parents=True, exist_ok=True)
+            Image.fromarray(np.asarray(obs[camera], dtype=np.uint8)).save(self.root / rel)
+            paths[camera] = str(rel)
+        return paths
+
+    def policy_episode(self, task: str, seed: int) -> dict:
+        """A new scene, the policy until the person (or the clock) ends it, then the person's verdict."""
+        loaded = self.loaded
+        if self.simulated:
+            self.robot.reset_scene(seed)
+        else:
+            self.person.ready(f"{task}: set up a new scene for the policy (episode {seed}), then press n")
+        for part in (loaded.policy, loaded.preprocessor, loaded.postprocessor):
+            part.reset()
+        import torch
+
+        device = torch.device(self.cfg.device)
+        start, first, steps = time.perf_counter(), None, 0
+        while steps < self.max_steps:
+            step_start = time.perf_counter()
+            obs = self.robot.get_observation()
+            if first is None:
+                first = obs
+            frame = self._frame(self.features, obs, self._obs)
+            values = self._predict(
+                frame, loaded.policy, device, loaded.preprocessor, loaded.postprocessor, False, task,
+                self.robot.robot_type,
+            )  # fmt: skip
+            self.robot.send_action(self._make_action(values, self.features))
+            steps += 1
+            if self.person.episode_over():
+                break
+            self._pace(step_start)
+        success = bool(self.person.judge(task))
+        return {
+            "type": "eval",
+            "task": task,
+            "seed": seed,
+            "success": success,
+            "steps": steps,
+            "initial_state": self._joints(first),
+            "first_frames": self._save_first_frames(first, task, seed),
+            "seconds": round(time.perf_counter() - start, 3),
+        }
+
+    def demonstration(self, task: str, failed: dict) -> tuple[Demonstration | None, int, float]:
+        """The person's demonstration from the failed episode's start: (demo or None after every attempt gave
+        none, attempts, seconds)."""
+        start = time.perf_counter()
+        for attempt in range(1, self.cfg.max_attempts + 1):
+            if self.simulated:
+                self.robot.reset_scene(failed["seed"])
+            else:
+                frames = ", ".join(str(self.root / p) for p in failed["first_frames"].values())
+                joints = ", ".join(
+                    f"{n}={v:.3g}" for n, v in zip(self.state_names, failed["initial_state"], strict=True)
+                )
+                self.person.ready(
+                    f"{task}: put the scene back as it was when episode {failed['seed']} started "
+                    f"({'first frame: ' + frames + '; ' if frames else ''}joints: {joints}), press n, then "
+                    "teleoperate the task; press n when done"
+                )
+            frames_out, first = [], None
+            while len(frames_out) < self.max_steps:
+                step_start = time.perf_counter()
+                obs = self.robot.get_observation()
+                first = first or obs
+                sent = self.robot.send_action(self.teleop.get_action())
+                frames_out.append(
+                    {
+                        **self._frame(self.features, obs, self._obs),
+                        **self._frame(self.features, sent, self._action),
+                    }
+                )
+                if self.person.episode_over():
+                    break
+                self._pace(step_start)
+            if self.person.keep_demo(task):
+                demo = Demonstration(
+                    task, np.asarray(self._joints(first)), failed["seed"], frames_out, attempt
+                )
+                return demo, attempt, time.perf_counter() - start
+        return None, self.cfg.max_attempts, time.perf_counter() - start
+
+    # -- one task ---------------------------------------------------------------------------------------------
+    def run_task(self, task: str) -> TaskRoundRecord:
+        cfg, journal = self.cfg, self.journal
+        target, cap = cfg.target_successes, cfg.max_demos_per_task
+        max_evals = cfg.max_eval_episodes_per_task or 2 * (target + cap)
+        self._recover_demos(task)
+        if hasattr(self.robot, "select_task"):
+            self.robot.select_task(task)
+        else:
+            self.person.ready(f"next task: {task!r}: set up its scene, then press n")
+        while True:
+            evals, demos, gave_up = (
+                journal.evaluations(task),
+                journal.demos(task),
+                journal.expert_failures(task),
+            )
+            for seed, entry in evals.items():  # a failure not yet answered (also after a resume)
+                if not entry["success"] and seed not in demos and seed not in gave_up and len(demos) < cap:
+                    self._answer(task, entry)
+            successes = sum(e["success"] for e in evals.values())
+            if successes >= target or len(journal.demos(task)) >= cap or len(evals) >= max_evals:
+                break
+            seed = derive_seed(cfg.seed, self.round_index, task, len(evals))
+            journal.append(self.policy_episode(task, seed))
+        return self._record(task, max_evals)
+
+    def _answer(self, task: str, failed: dict) -> None:
+        demo, attempts, seconds = self.demonstration(task, failed)
+        if demo is None:
+            self.journal.append(
+                {"type": "expert_failure", "task": task, "seed": failed["seed"], "attempts": attempts}
+            )
+            return
+        self.dataset.append_recorded(
+            self.robot.robot_type, [demo], self.round_index, SOURCE, self.cfg.teleop.type
+        )
+        self.journal.append(
+            {
+                "type": "demo",
+                "task": task,
+                "seed": demo.seed,
+                "steps": len(demo.frames),
+                "seconds": round(seconds, 3),
+            }
+        )
+
+    def _recover_demos(self, task: str) -> None:
+        """A stop between a demonstration's append and its journal entry: the dataset has it, so journal it."""
+        eps = read_episode_metadata(self.root)
+        mine = eps[
+            (eps.task == task)
+            & (eps["adademo/round"] == self.round_index)
+            & (eps["adademo/source"] == SOURCE)
+        ]
+        for seed, length in zip(mine["adademo/seed"], mine["length"], strict=True):
+            if int(seed) not in self.journal.demos(task):
+                self.journal.append(
+                    {"type": "demo", "task": task, "seed": int(seed), "steps": int(length), "seconds": 0.0}
+                )
+
+    def _record(self, task: str, max_evals: int) -> TaskRoundRecord:
+        cfg, journal = self.cfg, self.journal
+        evals = list(journal.evaluations(task).values())
+        demos = list(journal.demos(task).values())
+        successes = sum(e["success"] for e in evals)
+        policy_s = sum(e.get("seconds", 0.0) for e in evals)
+        demo_s = sum(d.get("seconds", 0.0) for d in demos)
+        return TaskRoundRecord(
+            round=self.round_index,
+            task=task,
+            strategy="adademo",
+            target_successes=cfg.target_successes,
+            max_demos_per_task=cfg.max_demos_per_task,
+            demos_per_task=None,
+            policy_path=str(cfg.policy.path),
+            eval_episodes=len(evals),
+            eval_episodes_run=len(evals),
+            successes=successes,
+            failures=len(evals) - successes,
+            demos_added=len(demos),
+            expert_failures=len(journal.expert_failures(task)),
+            cap_hit=len(demos) >= cfg.max_demos_per_task,
+            eval_bound_hit=len(evals) >= max_evals and successes < cfg.target_successes,
+            eval_env_steps=sum(e["steps"] for e in evals),
+            collection_env_steps=sum(d["steps"] for d in demos),
+            wall_seconds=round(policy_s + demo_s, 1),
+            extra={
+                "robot": self.robot.robot_type,
+                "teleop": cfg.teleop.type,
+                "person_seconds": {"policy_episodes": round(policy_s, 1), "demonstrations": round(demo_s, 1)},
+            },
+        )
+
+
+def slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_")[:60] or "task"
+
+
+def dataset_tasks(root: Path) -> list[str]:
+    import pandas as pd
+
+    return list(pd.read_parquet(root / "meta" / "tasks.parquet").index)
+
+
+def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
+    validate(cfg)
+    root = Path(cfg.dataset.root)
+    check_dataset_integrity(root)
+    from lerobot.robots.utils import make_robot_from_config
+    from lerobot.teleoperators.utils import make_teleoperator_from_config
+
+    from adademo_lerobot.policy import check_policy
+
+    robot = make_robot_from_config(cfg.robot)
+    teleop = make_teleoperator_from_config(cfg.teleop)
+    info = read_info(root)
+    use_video = any(ft.get("dtype") == "video" for ft in info.get("features", {}).values())
+    features = robot_features(robot, use_video)
+    check_recorded_with(root, robot, features)
+    check_policy(cfg.policy.path, features)
+    known = dataset_tasks(root)
+    tasks = [t.strip() for t in cfg.tasks.split(",")] if cfg.tasks else known
+    unknown = [t for t in tasks if t not in known]
+    if unknown:
+        raise AdaDemoError(f"--tasks: {unknown} not in the dataset (its tasks: {known})")
+    round_index = next_round(root)
+    print("\n".join(plan_lines(root, round_index, tasks, cfg)), flush=True)
+    person = make_person(cfg.judge, teleop)
+    session = None
+    try:
+        robot.connect()
+        teleop.connect()
+        session = Session(cfg, robot, teleop, person, features, round_index)
+        session.journal.start(
+            {
+                "strategy": "adademo",
+                "source": SOURCE,
+                "target_successes": cfg.target_successes,
+                "max_demos_per_task": cfg.max_demos_per_task,
+                "policy_path": str(cfg.policy.path),
+                "robot": robot.robot_type,
+                "teleop": cfg.teleop.type,
+                "seed": cfg.seed,
+            }
+        )
+        records = [session.run_task(task) for task in tasks]
+    except StopRecording:
+        raise KeyboardInterrupt from None
+    except ConnectionError as err:  # LeRobot's DeviceNotConnectedError, a serial port gone, ...
+        raise AdaDemoError(
+            f"the robot or teleoperator disconnected ({' '.join(str(err).split())[:200]}): reconnect it and rerun "
+            "the same command; the round resumes where it stopped"
+        ) from None
+    finally:
+        person.close()
+        for device in (teleop, robot):
+            if device.is_connected:
+                device.disconnect()
+    append_ledger(root, records)
+    session.journal.finish()
+    print(
+        table(
+            ["task", "policy episodes", "successes", "demos", "gave up", "person minutes"],
+            [
+                [
+                    r.task,
+                    r.eval_episodes,
+                    r.successes,
+                    r.demos_added,
+                    r.expert_failures,
+                    f"{r.wall_seconds / 60:.1f}",
+                ]
+                for r in records
+            ],
+        )
+    )
+    print(f"round {round_index}: {sum(r.demos_added for r in records)} demonstrations added to {root}")
+    return records

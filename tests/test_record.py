@@ -1,0 +1,197 @@
+"""adademo-record: an AdaDemo round with a person in the loop, through LeRobot's Robot and Teleoperator interfaces.
+
+Without hardware: the `adademo_sim` robot (a MetaWorld scene with a camera) and the `adademo_scripted` teleoperator
+(the scripted expert, answering the person's keys through LeRobot's teleop events) are real implementations of
+those interfaces, installed as LeRobot plugins, so the user's stock workflow runs first: `lerobot-record` records
+the initial demonstrations and `lerobot-train` trains the policy; then adademo-record runs a round, is stopped
+halfway, and the same command finishes it.
+"""
+
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import BIN, assert_cli_error, file_digests, requires_rendering, run_cli
+
+from adademo_lerobot.dataset.check import check_dataset_integrity
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.ledger import read_ledger, read_round_evaluations
+from adademo_lerobot.record import predicted_demos
+
+SIM = ["--robot.type=adademo_sim", "--robot.tasks=reach-v3,push-v3", "--robot.image_size=32"]
+
+
+def test_predicted_demos_is_the_papers_estimate_capped():
+    assert predicted_demos(0.5, target=5, cap=10) == 5  # E / SR - E
+    assert predicted_demos(0.25, target=5, cap=10) == 10  # 15, capped
+    assert predicted_demos(1.0, target=5, cap=10) == 0
+    assert predicted_demos(0.0, target=5, cap=10) == 10  # never succeeded: up to CAP
+    assert predicted_demos(None, target=5, cap=10) == 10  # never evaluated
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory) -> tuple[Path, Path]:
+    """Two tasks recorded by stock `lerobot-record` on the simulated robot, and an ACT trained by `lerobot-train`."""
+    tmp = tmp_path_factory.mktemp("robot")
+    root = tmp / "dataset"
+    for task, resume in (("reach-v3", "false"), ("push-v3", "true")):
+        run_cli(
+            "lerobot-record",
+            *SIM,
+            f"--robot.task={task}",
+            "--teleop.type=adademo_scripted",
+            "--dataset.repo_id=local/robot",
+            f"--dataset.root={root}",
+            f"--dataset.single_task={task}",
+            "--dataset.fps=80",
+            "--dataset.num_episodes=2",
+            "--dataset.episode_time_s=1",
+            "--dataset.reset_time_s=0",
+            "--dataset.push_to_hub=false",
+            f"--resume={resume}",
+            "--display_data=false",
+            "--play_sounds=false",
+        )
+    run_cli(
+        "lerobot-train",
+        "--dataset.repo_id=local/robot",
+        f"--dataset.root={root}",
+        "--policy.type=act",
+        "--policy.dim_model=32",
+        "--policy.dim_feedforward=64",
+        "--policy.n_heads=2",
+        "--policy.n_encoder_layers=1",
+        "--policy.n_decoder_layers=1",
+        "--policy.n_vae_encoder_layers=1",
+        "--policy.chunk_size=10",
+        "--policy.n_action_steps=5",
+        "--policy.device=cpu",
+        "--policy.pretrained_backbone_weights=null",  # no download at run time
+        "--policy.push_to_hub=false",
+        "--batch_size=4",
+        "--steps=2",
+        "--save_freq=2",
+        f"--output_dir={tmp / 'train'}",
+        "--num_workers=0",
+        "--env_eval_freq=0",
+        "--wandb.enable=false",
+    )
+    return root, tmp / "train" / "checkpoints" / "last" / "pretrained_model"
+
+
+def record_args(root: Path, checkpoint: Path, *extra: str) -> list[str]:
+    return [
+        *SIM,
+        "--teleop.type=adademo_scripted",
+        f"--policy.path={checkpoint}",
+        "--dataset.repo_id=local/robot",
+        f"--dataset.root={root}",
+        "--dataset.episode_time_s=1",
+        "--target_successes=2",
+        "--max_demos_per_task=2",
+        *extra,
+    ]
+
+
+@requires_rendering
+def test_stock_lerobot_record_uses_the_simulated_robot(recorded):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    root, _ = recorded
+    info = json.loads((root / "meta" / "info.json").read_text())
+    assert info["robot_type"] == "adademo_sim" and info["total_episodes"] == 4
+    assert info["features"]["observation.state"]["names"] == ["x.pos", "y.pos", "z.pos", "gripper.pos"]
+    assert info["features"]["action"]["names"] == ["x.vel", "y.vel", "z.vel", "gripper.vel"]
+    frame = LeRobotDataset("local/robot", root=root, video_backend="pyav")[0]
+    assert frame["observation.images.corner2"].shape == (3, 32, 32)
+    assert frame["observation.images.corner2"].std() > 0.01  # the scene, not a blank frame
+
+
+@requires_rendering
+def test_a_round_with_a_person_in_the_loop_stopped_then_resumed(recorded, tmp_path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    source, checkpoint = recorded
+    root = tmp_path / "dataset"
+    subprocess.run(["cp", "-r", str(source), str(root)], check=True)
+    args = record_args(root, checkpoint)
+
+    # Stopped (Ctrl-C) once the first demonstration is journaled.
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-record"), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    journal, deadline = root / "meta" / "adademo" / "journal-round-001.jsonl", time.time() + 600
+    while not (journal.exists() and '"type": "demo"' in journal.read_text()):
+        assert time.time() < deadline and proc.poll() is None, proc.communicate()[1][-3000:]
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-3000:]
+    assert "rerun the same command to resume" in err.decode()
+    check_dataset_integrity(root)  # whole: at most the episode in progress was lost
+
+    done = run_cli("adademo-record", *args)
+    assert "round 1 plan" in done.stdout and "predicted demos" in done.stdout
+
+    ledger = [r for r in read_ledger(root) if r["round"] == 1]
+    assert [r["task"] for r in ledger] == ["reach-v3", "push-v3"]
+    evaluations = [e for e in read_round_evaluations(root, 1) if e["type"] == "eval"]
+    failures = {(e["task"], e["seed"]) for e in evaluations if not e["success"]}
+    eps = read_episode_metadata(root)
+    new = eps[eps["adademo/round"] == 1]
+    for r in ledger:  # the stopping rule: E successes or CAP demos (or the evaluation bound)
+        mine = new[new.task == r["task"]]
+        assert r["demos_added"] == len(mine) <= 2
+        assert r["successes"] >= 2 or r["demos_added"] == 2 or r["eval_bound_hit"]
+        assert r["extra"]["teleop"] == "adademo_scripted" and r["wall_seconds"] > 0
+    # Every demonstration answers one failed policy episode of its task, and no failure got two.
+    answered = list(zip(new.task, new["adademo/seed"], strict=True))
+    assert len(answered) == len(set(answered)) and set(answered) <= failures
+    assert set(new["adademo/source"]) == {"human"} and set(new["adademo/collector"]) == {"adademo_scripted"}
+    assert all(len(s) == 4 for s in new["adademo/initial_state"])  # the robot's initial joint positions
+    for e in evaluations:  # each policy episode's first camera frame is kept, referenced from its record
+        assert (root / e["first_frames"]["corner2"]).is_file()
+        assert len(e["initial_state"]) == 4
+    stock = LeRobotDataset("local/robot", root=root, video_backend="pyav")
+    assert stock.meta.total_episodes == 4 + len(new)
+    assert np.isfinite(stock[len(stock) - 1]["action"].numpy()).all()
+    assert not journal.exists()  # the round is finished: its journal is archived with the evaluations
+
+
+@requires_rendering
+def test_bad_input_gets_one_error_and_no_change(recorded, reach_push_dataset, act_run, tmp_path):
+    root, checkpoint = recorded
+    before = file_digests(root)
+    assert_cli_error(
+        "adademo-record",
+        *record_args(root, checkpoint, "--robot.type=so999_follower"),
+        match="so999_follower",
+    )
+    assert_cli_error(
+        "adademo-record",
+        *record_args(root, checkpoint, "--teleop.type=no_such_leader"),
+        match="no_such_leader",
+    )
+    sim_policy = act_run / "checkpoints" / "last" / "pretrained_model"  # trained on a suite dataset
+    assert_cli_error("adademo-record", *record_args(root, sim_policy), match="features do not match")
+    assert_cli_error(
+        "adademo-record",
+        *record_args(reach_push_dataset, checkpoint),
+        match="recorded with robot 'metaworld'",
+    )
+    assert_cli_error(
+        "adademo-record",
+        *record_args(root, checkpoint, "--robot.image_size=48"),
+        match="another adademo_sim setup",
+    )
+    assert_cli_error(
+        "adademo-record", *record_args(root, checkpoint, "--judge=keys"), match="needs the person's keys"
+    )
+    assert_cli_error(
+        "adademo-record", *record_args(root, checkpoint, "--tasks=fly-v3"), match="not in the dataset"
+    )
+    assert file_digests(root) == before
