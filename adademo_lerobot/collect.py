@@ -13,6 +13,7 @@ from adademo_lerobot.dataset.metadata import check_same_suite, has_dataset, load
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.executors import Executor, LocalExecutor, check_executor_args, make_executor
+from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies.base import RoundContext
 from adademo_lerobot.suites import TaskSuite, make_suite
@@ -108,30 +109,31 @@ def run_collect(cfg) -> dict[str, TaskRoundRecord]:
     suite = make_suite(cfg.suite)
     cfg.collector.validate(suite)
     root = Path(cfg.dataset.root)
-    if has_dataset(root) and cfg.resume:
-        check_same_suite(load_suite_config(root), suite.config)
-        dataset = DemoDataset.open(cfg.dataset.repo_id, root)
-        check_dataset_integrity(root)
-    else:
-        DemoDataset.check_new_root(root)
-        dataset = DemoDataset(cfg.dataset.repo_id, root, suite.config)
-    start = time.perf_counter()
-    executor = make_executor(cfg.executor, cfg.ray, suite, cfg.collector, batch_size=1, torch_threads=1)
-    try:
-        summaries = collect_fresh(
-            suite,
-            dataset,
-            dict.fromkeys(suite.tasks, cfg.episodes_per_task),
-            cfg.seed,
-            round_index=0,
-            source="initial",
-            collector_config=cfg.collector,
-            executor=executor,
-            commit_every=cfg.commit_every,
-            desc="initial demos",
-        )
-    finally:
-        executor.close()
-    print(format_collection_table(summaries))
-    print(f"dataset: {root} ({time.perf_counter() - start:.1f} s)")
+    with exclusive_use(root, "adademo-collect"):  # one command at a time on a dataset
+        if has_dataset(root) and cfg.resume:
+            check_same_suite(load_suite_config(root), suite.config)
+            dataset = DemoDataset.open(cfg.dataset.repo_id, root)
+            check_dataset_integrity(root)
+        else:
+            DemoDataset.check_new_root(root)
+            dataset = DemoDataset(cfg.dataset.repo_id, root, suite.config)
+        start = time.perf_counter()
+        executor = make_executor(cfg.executor, cfg.ray, suite, cfg.collector, batch_size=1, torch_threads=1)
+        try:
+            summaries = collect_fresh(
+                suite,
+                dataset,
+                dict.fromkeys(suite.tasks, cfg.episodes_per_task),
+                cfg.seed,
+                round_index=0,
+                source="initial",
+                collector_config=cfg.collector,
+                executor=executor,
+                commit_every=cfg.commit_every,
+                desc="initial demos",
+            )
+        finally:
+            executor.close()
+        print(format_collection_table(summaries))
+        print(f"dataset: {root} ({time.perf_counter() - start:.1f} s)")
     return summaries

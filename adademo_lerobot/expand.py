@@ -11,6 +11,7 @@ kill between the ledger write and the journal's end is finished, never mistaken 
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 from tqdm import tqdm
@@ -22,6 +23,7 @@ from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, rea
 from adademo_lerobot.dataset.store import DemoDataset, recover_interrupted_write
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.executors import check_executor_args, make_executor
+from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import RoundJournal, append_ledger, ledger_rounds
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies import make_strategy, planned_demos
@@ -175,27 +177,34 @@ def run_expand(cfg, round_index: int | None = None, executor=None) -> list[TaskR
     needs_policy = strategy.needs_policy or cfg.plan_only
     if needs_policy and cfg.policy.path is None:
         raise AdaDemoError(f"--strategy={cfg.strategy} evaluates a policy: pass --policy.path=CKPT")
-    if not cfg.plan_only:
-        recover_interrupted_write(root)  # a write a kill left half-done is ours to roll back
-    check_dataset_integrity(root)  # refuse a damaged dataset before anything is written
-    suite = make_suite(load_suite_config(root))
-    if not cfg.plan_only:
-        cfg.collector.validate(suite)
-    if needs_policy:
-        from adademo_lerobot.policy import check_policy
+    with exclusive_use(root, "adademo-expand") if not cfg.plan_only else nullcontext():
+        if not cfg.plan_only:
+            recover_interrupted_write(root)  # a write a kill left half-done is ours to roll back
+        check_dataset_integrity(root)  # refuse a damaged dataset before anything is written
+        suite = make_suite(load_suite_config(root))
+        if not cfg.plan_only:
+            cfg.collector.validate(suite)
+        if needs_policy:
+            from adademo_lerobot.policy import check_policy
 
-        check_policy(cfg.policy.path, dataset_features(suite))
-    own_executor = executor is None
-    if own_executor:
-        executor = make_executor(
-            cfg.executor, cfg.ray, suite, cfg.collector, cfg.eval.batch_size, cfg.device, cfg.torch_threads
-        )
-    try:
-        executor.use_policy(str(cfg.policy.path) if needs_policy else None)
-        return _expand(cfg, suite, executor, strategy, needs_policy, root, round_index)
-    finally:
+            check_policy(cfg.policy.path, dataset_features(suite))
+        own_executor = executor is None
         if own_executor:
-            executor.close()
+            executor = make_executor(
+                cfg.executor,
+                cfg.ray,
+                suite,
+                cfg.collector,
+                cfg.eval.batch_size,
+                cfg.device,
+                cfg.torch_threads,
+            )
+        try:
+            executor.use_policy(str(cfg.policy.path) if needs_policy else None)
+            return _expand(cfg, suite, executor, strategy, needs_policy, root, round_index)
+        finally:
+            if own_executor:
+                executor.close()
 
 
 def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):

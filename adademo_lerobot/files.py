@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -16,6 +17,32 @@ def check_writable_location(path: Path, what: str) -> None:
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK):
         raise AdaDemoError(f"cannot write {what} {path}: {parent} is not a writable folder")
+
+
+@contextmanager
+def exclusive_use(folder: Path, command: str):
+    """Hold an advisory lock on `folder` while `command` writes there: a second command on the same folder is
+    refused instead of interleaving its writes with ours (or rolling back our write in progress as a crashed one).
+    The kernel releases the lock when the process ends, however it ends."""
+    import fcntl
+
+    from adademo_lerobot.errors import AdaDemoError
+
+    if not Path(folder).is_dir():  # nothing there yet to protect (the command checks its input itself)
+        yield
+        return
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise AdaDemoError(
+                f"{folder} is in use by another running adademo command; wait for it to finish (or stop it), "
+                f"then rerun {command}"
+            ) from None
+        yield
+    finally:
+        os.close(fd)
 
 
 def atomic_write_text(path: Path, text: str) -> None:

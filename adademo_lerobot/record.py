@@ -41,6 +41,7 @@ from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata,
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.expand import next_round
+from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import RoundJournal, append_ledger
 from adademo_lerobot.records import Demonstration, TaskRoundRecord
 from adademo_lerobot.seeds import derive_seed
@@ -527,56 +528,57 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
     unknown = [t for t in tasks if t not in known]
     if unknown:
         raise AdaDemoError(f"--tasks: {unknown} not in the dataset (its tasks: {known})")
-    round_index = next_round(root)
-    print("\n".join(plan_lines(root, round_index, tasks, cfg)), flush=True)
-    person = make_person(cfg.judge, teleop)
-    session = None
-    try:
-        robot.connect()
-        teleop.connect()
-        session = Session(cfg, robot, teleop, person, features, round_index)
-        session.journal.start(
-            {
-                "strategy": "adademo",
-                "source": SOURCE,
-                "target_successes": cfg.target_successes,
-                "max_demos_per_task": cfg.max_demos_per_task,
-                "policy_path": str(cfg.policy.path),
-                "robot": robot.robot_type,
-                "teleop": cfg.teleop.type,
-                "seed": cfg.seed,
-            }
-        )
-        records = [session.run_task(task) for task in tasks]
-    except StopRecording:
-        raise KeyboardInterrupt from None
-    except ConnectionError as err:  # LeRobot's DeviceNotConnectedError, a serial port gone, ...
-        raise AdaDemoError(
-            f"the robot or teleoperator disconnected ({' '.join(str(err).split())[:200]}): reconnect it and rerun "
-            "the same command; the round resumes where it stopped"
-        ) from None
-    finally:
-        person.close()
-        for device in (teleop, robot):
-            if device.is_connected:
-                device.disconnect()
-    append_ledger(root, records)
-    session.journal.finish()
-    print(
-        table(
-            ["task", "policy episodes", "successes", "demos", "gave up", "person minutes"],
-            [
+    with exclusive_use(root, "adademo-record"):  # one command at a time on a dataset
+        round_index = next_round(root)
+        print("\n".join(plan_lines(root, round_index, tasks, cfg)), flush=True)
+        person = make_person(cfg.judge, teleop)
+        session = None
+        try:
+            robot.connect()
+            teleop.connect()
+            session = Session(cfg, robot, teleop, person, features, round_index)
+            session.journal.start(
+                {
+                    "strategy": "adademo",
+                    "source": SOURCE,
+                    "target_successes": cfg.target_successes,
+                    "max_demos_per_task": cfg.max_demos_per_task,
+                    "policy_path": str(cfg.policy.path),
+                    "robot": robot.robot_type,
+                    "teleop": cfg.teleop.type,
+                    "seed": cfg.seed,
+                }
+            )
+            records = [session.run_task(task) for task in tasks]
+        except StopRecording:
+            raise KeyboardInterrupt from None
+        except ConnectionError as err:  # LeRobot's DeviceNotConnectedError, a serial port gone, ...
+            raise AdaDemoError(
+                f"the robot or teleoperator disconnected ({' '.join(str(err).split())[:200]}): reconnect it and rerun "
+                "the same command; the round resumes where it stopped"
+            ) from None
+        finally:
+            person.close()
+            for device in (teleop, robot):
+                if device.is_connected:
+                    device.disconnect()
+        append_ledger(root, records)
+        session.journal.finish()
+        print(
+            table(
+                ["task", "policy episodes", "successes", "demos", "gave up", "person minutes"],
                 [
-                    r.task,
-                    r.eval_episodes,
-                    r.successes,
-                    r.demos_added,
-                    r.expert_failures,
-                    f"{r.wall_seconds / 60:.1f}",
-                ]
-                for r in records
-            ],
+                    [
+                        r.task,
+                        r.eval_episodes,
+                        r.successes,
+                        r.demos_added,
+                        r.expert_failures,
+                        f"{r.wall_seconds / 60:.1f}",
+                    ]
+                    for r in records
+                ],
+            )
         )
-    )
-    print(f"round {round_index}: {sum(r.demos_added for r in records)} demonstrations added to {root}")
+        print(f"round {round_index}: {sum(r.demos_added for r in records)} demonstrations added to {root}")
     return records

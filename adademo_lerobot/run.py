@@ -42,7 +42,7 @@ from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.evaluation import format_success_table, success_table, write_eval_outputs
 from adademo_lerobot.executors import RayArgs, check_executor_args, make_executor
 from adademo_lerobot.expand import next_round, run_expand
-from adademo_lerobot.files import atomic_write_text
+from adademo_lerobot.files import atomic_write_text, exclusive_use
 from adademo_lerobot.fixed_set import evaluate_fixed_set
 from adademo_lerobot.ledger import ledger_rounds
 from adademo_lerobot.policy import check_policy
@@ -290,48 +290,58 @@ def run(cfg: RunConfig) -> Path:
         cfg.train.sampler, cfg.train.min_task_weight, len(suite.tasks), cfg.train.sampler_alpha
     )
     run_dir.mkdir(parents=True, exist_ok=True)
-    state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()))
-    episodes = Episodes(cfg, suite)  # the executor, made when a stage first needs it, kept for the whole run
-    try:
-        if cfg.dataset.repo_id is None:
-            dataset_root, repo_id, base, checkpoint = run_dir / "dataset", f"local/{run_dir.name}", 0, None
-            state.stage("collect", collect_initial, cfg, suite, episodes, dataset_root, repo_id)
-        else:
-            begun = state.stage("start", begin_from, cfg, start, run_dir)["result"]
-            dataset_root, repo_id, base = (
-                Path(begun["dataset_root"]),
-                cfg.dataset.repo_id,
-                begun["base_round"],
-            )
-            checkpoint = Path(begun["checkpoint"]) if begun["checkpoint"] else None
-            if cfg.train.policy is None:  # no policy in the recipe: later rounds train the checkpoint's own
-                cfg.train.policy = PreTrainedConfig.from_pretrained(checkpoint)
-                cfg.train.policy.pretrained_path = None
-        if checkpoint is None:
-            checkpoint = Path(
-                state.stage("train-0", train_round, cfg, run_dir, dataset_root, repo_id, 0, None, base)[
-                    "result"
-                ]
-            )
-        state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
-        for i in range(1, cfg.rounds + 1):
-            state.stage(
-                f"expand-{i}", expand_round, cfg, episodes, dataset_root, repo_id, checkpoint, i, base
-            )
-            checkpoint = Path(
+    with exclusive_use(run_dir, "adademo-run"):  # one command at a time in a run folder
+        state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()))
+        episodes = Episodes(
+            cfg, suite
+        )  # the executor, made when a stage first needs it, kept for the whole run
+        try:
+            if cfg.dataset.repo_id is None:
+                dataset_root, repo_id, base, checkpoint = (
+                    run_dir / "dataset",
+                    f"local/{run_dir.name}",
+                    0,
+                    None,
+                )
+                state.stage("collect", collect_initial, cfg, suite, episodes, dataset_root, repo_id)
+            else:
+                begun = state.stage("start", begin_from, cfg, start, run_dir)["result"]
+                dataset_root, repo_id, base = (
+                    Path(begun["dataset_root"]),
+                    cfg.dataset.repo_id,
+                    begun["base_round"],
+                )
+                checkpoint = Path(begun["checkpoint"]) if begun["checkpoint"] else None
+                if (
+                    cfg.train.policy is None
+                ):  # no policy in the recipe: later rounds train the checkpoint's own
+                    cfg.train.policy = PreTrainedConfig.from_pretrained(checkpoint)
+                    cfg.train.policy.pretrained_path = None
+            if checkpoint is None:
+                checkpoint = Path(
+                    state.stage("train-0", train_round, cfg, run_dir, dataset_root, repo_id, 0, None, base)[
+                        "result"
+                    ]
+                )
+            state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
+            for i in range(1, cfg.rounds + 1):
                 state.stage(
-                    f"train-{i}", train_round, cfg, run_dir, dataset_root, repo_id, i, checkpoint, base
-                )["result"]
-            )
-            state.stage(f"eval-{i}", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, i)
-    finally:
-        episodes.close()
+                    f"expand-{i}", expand_round, cfg, episodes, dataset_root, repo_id, checkpoint, i, base
+                )
+                checkpoint = Path(
+                    state.stage(
+                        f"train-{i}", train_round, cfg, run_dir, dataset_root, repo_id, i, checkpoint, base
+                    )["result"]
+                )
+                state.stage(f"eval-{i}", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, i)
+        finally:
+            episodes.close()
 
-    from adademo_lerobot.report import write_report
+        from adademo_lerobot.report import write_report
 
-    report = write_report([run_dir], run_dir / "report")
-    if cfg.push_to_hub:
-        state.stage("push", push, cfg, dataset_root, repo_id)
+        report = write_report([run_dir], run_dir / "report")
+        if cfg.push_to_hub:
+            state.stage("push", push, cfg, dataset_root, repo_id)
     print(f"run complete: {run_dir} (report: {report})")
     return run_dir
 

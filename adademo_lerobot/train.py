@@ -1,7 +1,7 @@
 """`adademo-train`: LeRobot training with AdaDemo's episode-weighted sampler (paper principle C).
 
 Everything but the sampler is LeRobot's: `make_dataset`, `make_policy`, the pre/post-processors, optimizer
-presets, `update_policy` and `save_checkpoint`. LeRobot 0.4.4 has no sampler hook, so this module holds the
+presets, `update_policy` and `save_checkpoint`. LeRobot's training has no sampler hook, so this module holds the
 few lines of the training loop that build the DataLoader around our `WeightedFrameSampler`.
 """
 

@@ -41,12 +41,13 @@ CANDIDATES = (
     "peg-insert-side-v3,window-open-v3,window-close-v3,button-press-v3,coffee-button-v3,plate-slide-v3,"
     "handle-press-v3,faucet-open-v3,sweep-into-v3"
 )
-ARMS = {
+ALL_ARMS = {
     "uniform": ["--strategy=uniform", "--train.sampler=trajectory"],
     "adademo": ["--strategy=adademo", "--train.sampler=trajectory"],
     "adademo_tempered": ["--strategy=adademo", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
     "budgeted_tempered": ["--strategy=budgeted", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
 }
+ARMS = list(ALL_ARMS)  # the arms a report covers (phase_report narrows it to the finished ones)
 LABELS = {
     "uniform": "Uniform",
     "adademo": "AdaDemo (paper: E from the budget, trajectory sampler)",
@@ -146,10 +147,11 @@ def phase_noise(out: Path) -> None:
 def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
     for seed in seeds:
         base = out / f"seed{seed}" / "base"
-        adademo_run(base, "--rounds=0", *seed_flags(seed))
+        if not (base / "eval" / "round-000" / "eval_summary.json").exists():  # another driver may share it
+            adademo_run(base, "--rounds=0", *seed_flags(seed))
         for arm in arms:
             arm_dir = out / f"seed{seed}" / arm
-            flags = [*ARMS[arm], *seed_flags(seed)]
+            flags = [*ALL_ARMS[arm], *seed_flags(seed)]
             branch_from_base(base, arm_dir, flags)
             adademo_run(arm_dir, *flags)
 
@@ -170,13 +172,15 @@ def phase_report(out: Path, seeds: list[int]) -> None:
 
     runs = {
         (arm, s): load_run(out / f"seed{s}" / arm)
-        for arm in ARMS
+        for arm in ALL_ARMS
         for s in seeds
         if (out / f"seed{s}" / arm / "eval" / "round-003" / "eval_summary.json").exists()
     }
-    complete = [s for s in seeds if all((arm, s) in runs for arm in ARMS)]
-    if not complete:
-        sys.exit("no seed has every arm through round 3 yet")
+    # The arms through round 3 in every seed that has Uniform through round 3 (a partial run reports those).
+    complete = [s for s in seeds if ("uniform", s) in runs]
+    ARMS[:] = [a for a in ALL_ARMS if complete and all((a, s) in runs for s in complete)]
+    if len(ARMS) < 2:
+        sys.exit("no seed has Uniform and another arm through round 3 yet")
     tasks = runs[("uniform", complete[0])].tasks
     sr = {
         arm: np.stack([runs[(arm, s)].success.loc[tasks].to_numpy() for s in complete]) for arm in ARMS
@@ -207,7 +211,7 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         "",
         f"Command: `python benchmarks/data_efficiency.py arms --seeds {' '.join(map(str, seeds))}` then `report`; "
         f"{machine_line()}.",
-        f"Seeds complete: {complete}. Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}); arms differ only "
+        f"Seeds complete: {complete}; arms: {', '.join(ARMS)}. Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}); arms differ only "
         "in strategy and sampler (see the script's docstring). Success on the same 50 fixed initial states per task "
         "every round; mean ± std over seeds; in brackets the demos per task after the round.",
         "",
@@ -303,7 +307,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("phase", choices=["select", "noise", "arms", "report"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS))
+    parser.add_argument("--arms", nargs="+", choices=list(ALL_ARMS), default=list(ALL_ARMS))
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
     parser.add_argument("--torch_threads", type=int, default=None)
     parser.add_argument("--candidates", default=CANDIDATES, help="select: comma-separated MetaWorld tasks")

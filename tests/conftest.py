@@ -160,7 +160,7 @@ def file_digests(root: Path) -> dict[str, str]:
     }
 
 
-TINY_ACT = [
+TINY_ACT_POLICY = [
     "--policy.type=act",
     "--policy.dim_model=32",
     "--policy.dim_feedforward=64",
@@ -171,8 +171,8 @@ TINY_ACT = [
     "--policy.chunk_size=10",
     "--policy.n_action_steps=5",
     "--policy.device=cpu",
-    "--batch_size=8",
 ]
+TINY_ACT = [*TINY_ACT_POLICY, "--batch_size=8"]
 
 
 @pytest.fixture(scope="session")

@@ -11,10 +11,11 @@ import time
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from conftest import BIN, assert_cli_error, file_digests, run_cli
+from conftest import BIN, TINY_ACT_POLICY, assert_cli_error, file_digests, run_cli
 
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.dataset.store import recover_interrupted_write
+from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.seeds import expansion_state_seed, fresh_state_seed
 from adademo_lerobot.strategies import planned_demos
@@ -224,6 +225,10 @@ def test_bad_input_gets_one_clear_error_and_no_change(dataset, ckpt, tmp_path):
     fails(f"--policy.path={ckpt}", "--strategy=greedy", match="strategy")
     fails(f"--policy.path={tmp_path / 'missing'}", match="no LeRobot checkpoint")
     fails("--strategy=adademo", match="--policy.path")
+    with exclusive_use(
+        dataset, "a test"
+    ):  # another command is writing this dataset: refused, not interleaved
+        fails("--strategy=uniform", "--demos_per_task=1", match="in use by another running adademo command")
     assert file_digests(dataset) == before
 
     three = tmp_path / "three"
@@ -296,16 +301,7 @@ def test_checkpoint_with_another_action_size_is_refused(dataset, tmp_path):
             str(BIN / "lerobot-train"),
             "--dataset.repo_id=local/other",
             f"--dataset.root={tmp_path / 'other'}",
-            "--policy.type=act",
-            "--policy.dim_model=32",
-            "--policy.dim_feedforward=64",
-            "--policy.n_heads=2",
-            "--policy.n_encoder_layers=1",
-            "--policy.n_decoder_layers=1",
-            "--policy.n_vae_encoder_layers=1",
-            "--policy.chunk_size=10",
-            "--policy.n_action_steps=5",
-            "--policy.device=cpu",
+            *TINY_ACT_POLICY,
             "--batch_size=4",
             "--steps=1",
             f"--output_dir={out}",

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import BIN, assert_cli_error, file_digests, requires_rendering, run_cli
+from conftest import BIN, TINY_ACT_POLICY, assert_cli_error, file_digests, requires_rendering, run_cli
 
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.metadata import read_episode_metadata
@@ -60,16 +60,7 @@ def recorded(tmp_path_factory) -> tuple[Path, Path]:
         "lerobot-train",
         "--dataset.repo_id=local/robot",
         f"--dataset.root={root}",
-        "--policy.type=act",
-        "--policy.dim_model=32",
-        "--policy.dim_feedforward=64",
-        "--policy.n_heads=2",
-        "--policy.n_encoder_layers=1",
-        "--policy.n_decoder_layers=1",
-        "--policy.n_vae_encoder_layers=1",
-        "--policy.chunk_size=10",
-        "--policy.n_action_steps=5",
-        "--policy.device=cpu",
+        *TINY_ACT_POLICY,
         "--policy.pretrained_backbone_weights=null",  # no download at run time
         "--policy.push_to_hub=false",
         "--batch_size=4",

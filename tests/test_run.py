@@ -8,6 +8,7 @@ import time
 from conftest import BIN, assert_cli_error, run_cli
 
 from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import read_ledger
 from adademo_lerobot.seeds import evaluation_seeds
 
@@ -153,3 +154,13 @@ def test_run_bad_input(tmp_path):
     )
     assert_cli_error("adademo-report", f"--run_dir={tmp_path}", match="run_state.json")
     assert not (tmp_path / "r").exists()
+    busy = tmp_path / "busy"  # another adademo-run works in this folder: refused before anything is written
+    busy.mkdir()
+    with exclusive_use(busy, "a test"):
+        assert_cli_error(
+            "adademo-run",
+            "--config_path=recipes/tiny.yaml",
+            f"--run_dir={busy}",
+            match="in use by another running adademo command",
+        )
+    assert list(busy.iterdir()) == []

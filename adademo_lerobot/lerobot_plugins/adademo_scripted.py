@@ -8,11 +8,11 @@ from __future__ import annotations
 from lerobot.teleoperators.teleoperator import Teleoperator
 from lerobot.teleoperators.utils import TeleopEvents
 
-from adademo_lerobot.lerobot_plugins.adademo_sim import ACTIONS, connected_sim
+from adademo_lerobot.lerobot_plugins.adademo_sim import ACTIONS, Simulated, connected_sim
 from adademo_lerobot.lerobot_plugins.config_adademo_scripted import AdademoScriptedConfig
 
 
-class AdademoScripted(Teleoperator):
+class AdademoScripted(Simulated, Teleoperator):
     config_class = AdademoScriptedConfig
     name = "adademo_scripted"
 
@@ -36,16 +36,6 @@ class AdademoScripted(Teleoperator):
 
     def connect(self, calibrate: bool = True) -> None:
         self._connected = True
-
-    @property
-    def is_calibrated(self) -> bool:
-        return True
-
-    def calibrate(self) -> None:
-        pass
-
-    def configure(self) -> None:
-        pass
 
     def get_action(self) -> dict:
         robot = connected_sim()

@@ -34,7 +34,21 @@ def connected_sim() -> AdademoSim:
     return _CONNECTED[-1]
 
 
-class AdademoSim(Robot):
+class Simulated:
+    """What a simulated device answers to LeRobot's setup calls: nothing to calibrate or configure."""
+
+    @property
+    def is_calibrated(self) -> bool:
+        return True
+
+    def calibrate(self) -> None:
+        pass
+
+    def configure(self) -> None:
+        pass
+
+
+class AdademoSim(Simulated, Robot):
     config_class = AdademoSimConfig
     name = "adademo_sim"
     # adademo-record: no real-time pacing, and scenes are set with reset_scene instead of by a person.
@@ -90,16 +104,6 @@ class AdademoSim(Robot):
         self._suite = suite_config.build()
         _CONNECTED.append(self)
         self.reset_scene()
-
-    @property
-    def is_calibrated(self) -> bool:
-        return True
-
-    def calibrate(self) -> None:
-        pass
-
-    def configure(self) -> None:
-        pass
 
     def _env(self):
         if self.task not in self._envs:
