@@ -117,6 +117,7 @@ def test_in_place_on_a_dataset_recorded_elsewhere_with_the_suite_flags(
     assert "(demos)" in (run_dir / "report" / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_bad_starting_points_get_one_error_and_nothing_is_written(reach_push_dataset, checkpoint, tmp_path):
     run_dir = tmp_path / "run"
     common = [*CONTINUE, f"--run_dir={run_dir}", f"--dataset.root={reach_push_dataset}"]

@@ -139,6 +139,7 @@ def test_ray_gives_the_same_round_as_local(reach_push_dataset, ckpt, ray_address
     same_round(local, remote, 3)
 
 
+@pytest.mark.slow
 def test_fixed_set_evaluation_and_collection_are_the_same_with_any_number_of_workers(
     ckpt, reach_push_dataset, ray_address, tmp_path
 ):
@@ -202,6 +203,7 @@ def evaluations_so_far(root: Path) -> int:
     )
 
 
+@pytest.mark.slow
 def test_a_killed_worker_is_replaced_and_the_round_is_complete_and_the_same(
     reach_push_dataset, ckpt, ray_address, tmp_path
 ):
@@ -224,6 +226,7 @@ def test_a_killed_worker_is_replaced_and_the_round_is_complete_and_the_same(
     same_round(reference, faulty, 1)  # nothing lost, nothing twice
 
 
+@pytest.mark.slow
 def test_a_killed_driver_resumes_from_the_journal_to_the_same_round(
     reach_push_dataset, ckpt, ray_address, tmp_path
 ):

@@ -149,6 +149,7 @@ def test_plan_only_prints_predictions_and_changes_nothing(dataset, ckpt):
     assert file_digests(dataset) == before
 
 
+@pytest.mark.slow
 def test_second_round_follows_the_first(dataset, ckpt):
     expand(dataset, "--strategy=uniform", "--demos_per_task=1")
     expand(
@@ -272,6 +273,7 @@ def test_a_damaged_dataset_is_refused_before_anything_is_written(dataset, ckpt):
     assert not (dataset / "meta" / "adademo" / "journal-round-001.jsonl").exists()
 
 
+@pytest.mark.slow
 def test_checkpoint_with_another_action_size_is_refused(dataset, tmp_path):
     """A real stock `lerobot-train` ACT whose action has 5 dims (the suite's has 4)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset

@@ -57,6 +57,7 @@ def test_a_dataset_made_with_lerobot_044_opens_trains_and_expands(tmp_path):
     assert (out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").exists()
 
 
+@pytest.mark.slow
 def test_a_checkpoint_made_with_lerobot_044_evaluates_and_fine_tunes(tmp_path):
     ckpt, root = FIXTURES / "act_checkpoint", tmp_path / "old"
     shutil.copytree(FIXTURES / "dataset", root)
@@ -133,6 +134,7 @@ def two_datasets(reach_push_dataset, tmp_path):
     return a, b
 
 
+@pytest.mark.slow
 def test_lerobot_merge_keeps_the_rounds_and_the_result_expands(two_datasets, tmp_path):
     a, b = two_datasets
     merged = tmp_path / "merged"
@@ -170,6 +172,7 @@ def test_lerobot_delete_episodes_drops_our_columns_and_the_result_still_expands(
     assert list(eps["adademo/round"]) == [0] * 5 + [1, 1]  # the old episodes were given the columns too
 
 
+@pytest.mark.slow
 def test_lerobot_split_results_each_expand(reach_push_dataset, tmp_path):
     source, base = tmp_path / "src", tmp_path / "split"
     shutil.copytree(reach_push_dataset, source)

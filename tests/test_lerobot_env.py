@@ -6,6 +6,7 @@ import subprocess
 
 import numpy as np
 import pandas as pd
+import pytest
 from conftest import BIN, requires_rendering
 
 
@@ -49,6 +50,7 @@ def test_stock_lerobot_eval_finds_our_env_plugin_and_needs_no_gl_with_recording(
     )  # push-v3 is the 2nd task of the one-hot
 
 
+@pytest.mark.slow
 @requires_rendering
 def test_stock_lerobot_eval_renders_videos_of_state_envs(act_run, reach_push_dataset, tmp_path):
     ckpt = act_run / "checkpoints" / "last" / "pretrained_model"

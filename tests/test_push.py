@@ -197,6 +197,7 @@ def test_card_for_many_tasks_has_one_row_per_round_and_task(expanded):
         assert row in card
 
 
+@pytest.mark.slow
 def test_run_pushes_its_dataset_at_the_end(hub, tmp_path):
     """`adademo-run --push_to_hub=true` pushes the run's dataset, ledger included, once the run is complete."""
     env = hub_env(hub, tmp_path)

@@ -113,7 +113,11 @@ def test_a_round_with_a_person_in_the_loop_stopped_then_resumed(recorded, tmp_pa
 
     # Stopped (Ctrl-C) once the first demonstration is journaled.
     proc = subprocess.Popen(
-        [str(BIN / "adademo-record"), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        [str(BIN / "adademo-record"), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        # Ctrl-C as in a terminal, even when the suite itself runs in the background (which ignores SIGINT).
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     journal, deadline = root / "meta" / "adademo" / "journal-round-001.jsonl", time.time() + 600
     while not (journal.exists() and '"type": "demo"' in journal.read_text()):
@@ -153,6 +157,7 @@ def test_a_round_with_a_person_in_the_loop_stopped_then_resumed(recorded, tmp_pa
     assert not journal.exists()  # the round is finished: its journal is archived with the evaluations
 
 
+@pytest.mark.slow
 @requires_rendering
 def test_bad_input_gets_one_error_and_no_change(recorded, reach_push_dataset, act_run, tmp_path):
     root, checkpoint = recorded

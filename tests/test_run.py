@@ -5,6 +5,7 @@ import signal
 import subprocess
 import time
 
+import pytest
 from conftest import BIN, assert_cli_error, run_cli
 
 from adademo_lerobot.dataset.metadata import read_episode_metadata
@@ -106,6 +107,7 @@ def test_a_kill_between_the_ledger_and_the_journal_end_loses_no_round(tmp_path):
     assert not list((dataset / "meta" / "adademo").glob("journal-round-*.jsonl"))
 
 
+@pytest.mark.slow
 def test_kill_midway_then_rerun_finishes_without_redoing_stages(tmp_path):
     run_dir = tmp_path / "killed"
     args = [
@@ -136,6 +138,7 @@ def test_kill_midway_then_rerun_finishes_without_redoing_stages(tmp_path):
     assert (run_dir / "report" / "report.md").exists()
 
 
+@pytest.mark.slow
 def test_run_bad_input(tmp_path):
     assert_cli_error("adademo-run", "--config_path=recipes/tiny.yaml", match="--run_dir")
     assert_cli_error(

@@ -166,6 +166,7 @@ def test_pixels_state_adds_a_camera_image_and_keeps_the_state_exact(name):
     assert frame.shape == (256, 256, 3) and frame.dtype == np.uint8 and frame.std() > 1.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CASES)
 def test_one_adademo_expand_round(name, tmp_path):
     """The same commands work unchanged on every suite: collect, train a weak ACT, expand one round."""

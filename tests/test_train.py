@@ -109,6 +109,7 @@ def test_fine_tune_from_a_stock_lerobot_train_checkpoint(reach_push_dataset, sto
     assert first_action(ckpt, reach_push_dataset).shape == (1, 4)
 
 
+@pytest.mark.slow
 def test_resume_after_kill_loses_at_most_the_steps_since_the_last_checkpoint(reach_push_dataset, tmp_path):
     out = tmp_path / "killed"
     args = [*data_args(reach_push_dataset), *TINY_ACT, "--steps=400", "--save_freq=3", f"--output_dir={out}"]
@@ -143,6 +144,7 @@ def test_resume_after_kill_loses_at_most_the_steps_since_the_last_checkpoint(rea
     )
 
 
+@pytest.mark.slow
 def test_bad_input(reach_push_dataset, act_run, tmp_path):
     def fails(*args, match):
         return assert_cli_error("adademo-train", *args, match=match)
