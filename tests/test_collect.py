@@ -5,6 +5,7 @@ import os
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 from conftest import assert_cli_error, file_digests, run_cli
 
 from adademo_lerobot.collect import collect_fresh
@@ -143,6 +144,7 @@ def test_expert_retries_and_skips_failed_initial_states(tmp_path):
     assert not failed_seeds & set(meta["adademo/seed"])
 
 
+@pytest.mark.slow
 def test_resume_completes_to_the_same_dataset(tmp_path):
     args = ["--suite.tasks=reach-v3,button-press-topdown-v3", "--dataset.repo_id=local/r", "--seed=4"]
     root = tmp_path / "resumed"

@@ -90,6 +90,7 @@ def test_continue_from_a_local_dataset_and_checkpoint_then_resume(reach_push_dat
     assert "Started from dataset me/reach-push" in report and "round 0: SR % (demos)" in report
 
 
+@pytest.mark.slow
 def test_in_place_on_a_dataset_recorded_elsewhere_with_the_suite_flags(
     reach_push_dataset, checkpoint, tmp_path
 ):

@@ -111,6 +111,7 @@ def test_uniform_adds_exactly_n_per_task_from_fresh_states(dataset):
         assert set(rows["adademo/seed"]) <= {fresh_state_seed(0, 1, r["task"], d) for d in range(12)}
 
 
+@pytest.mark.slow
 def test_task_only_allocates_like_adademo_from_fresh_states(dataset, ckpt):
     expand(
         dataset,

@@ -154,6 +154,7 @@ def test_lerobot_merge_keeps_the_rounds_and_the_result_expands(two_datasets, tmp
     assert (read_episode_metadata(merged)["adademo/round"].max()) == 1
 
 
+@pytest.mark.slow
 def test_lerobot_delete_episodes_drops_our_columns_and_the_result_still_expands(reach_push_dataset, tmp_path):
     source, out = tmp_path / "src", tmp_path / "deleted"
     shutil.copytree(reach_push_dataset, source)

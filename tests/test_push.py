@@ -234,6 +234,7 @@ def in_process_like_children(monkeypatch) -> None:
 EPISODE_COLUMNS = ["episode_index", "tasks", "length", "adademo/round", "adademo/source", "adademo/seed"]
 
 
+@pytest.mark.slow
 def test_pushed_dataset_loads_back_with_stock_lerobot(hub, expanded, tmp_path):
     """`LeRobotDataset(repo_id)` (no root) downloads the pushed private dataset into a fresh HF_LEROBOT_HOME:
     the same episodes, every file byte for byte, `meta/adademo/` included."""
@@ -286,6 +287,7 @@ def test_pushed_dataset_loads_back_with_stock_lerobot(hub, expanded, tmp_path):
     assert {rel: downloaded.get(rel) for rel in local} == local
 
 
+@pytest.mark.slow
 def test_checkpoint_round_trips_through_a_model_repo(hub, act_run, tmp_path, monkeypatch):
     """A LeRobot checkpoint folder uploaded to a model repo comes back with snapshot_download and loads with
     `load_policy`, weights identical."""

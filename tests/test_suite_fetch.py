@@ -141,6 +141,7 @@ def test_scripted_experts_solve_reach_push_pick_and_place(suite):
         assert successes >= 18, f"{task}: {successes}/20"
 
 
+@pytest.mark.slow
 def test_adademo_collect_cli_writes_a_stock_lerobot_dataset(tmp_path):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
