@@ -98,6 +98,30 @@ def format_collection_table(records: dict[str, TaskRoundRecord]) -> str:
     return "\n".join(lines)
 
 
+def collect_initial_demos(
+    suite: TaskSuite,
+    dataset: DemoDataset,
+    per_task: int,
+    seed: int,
+    collector_config,
+    executor,
+    commit_every: int,
+) -> dict[str, TaskRoundRecord]:
+    """Round 0: `per_task` demos of every task from fresh initial states (adademo-collect and adademo-run)."""
+    return collect_fresh(
+        suite,
+        dataset,
+        dict.fromkeys(suite.tasks, per_task),
+        seed,
+        round_index=0,
+        source="initial",
+        collector_config=collector_config,
+        executor=executor,
+        commit_every=commit_every,
+        desc="initial demos",
+    )
+
+
 def run_collect(cfg) -> dict[str, TaskRoundRecord]:
     """`adademo-collect`: the initial dataset (round 0, source `initial`)."""
     # Validate everything before touching the disk.
@@ -120,17 +144,8 @@ def run_collect(cfg) -> dict[str, TaskRoundRecord]:
         start = time.perf_counter()
         executor = make_executor(cfg.executor, cfg.ray, suite, cfg.collector, batch_size=1, torch_threads=1)
         try:
-            summaries = collect_fresh(
-                suite,
-                dataset,
-                dict.fromkeys(suite.tasks, cfg.episodes_per_task),
-                cfg.seed,
-                round_index=0,
-                source="initial",
-                collector_config=cfg.collector,
-                executor=executor,
-                commit_every=cfg.commit_every,
-                desc="initial demos",
+            summaries = collect_initial_demos(
+                suite, dataset, cfg.episodes_per_task, cfg.seed, cfg.collector, executor, cfg.commit_every
             )
         finally:
             executor.close()

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from lerobot.configs.policies import PreTrainedConfig
 
-from adademo_lerobot.collect import collect_fresh, format_collection_table
+from adademo_lerobot.collect import collect_initial_demos, format_collection_table
 from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.configs import (
     DatasetArgs,
@@ -400,17 +400,8 @@ def collect_initial(cfg: RunConfig, suite, episodes: Episodes, dataset_root: Pat
         dataset = DemoDataset(repo_id, dataset_root, suite.config)
     else:
         dataset = DemoDataset.open(repo_id, dataset_root)
-    records = collect_fresh(
-        suite,
-        dataset,
-        dict.fromkeys(suite.tasks, cfg.initial_demos_per_task),
-        cfg.seed,
-        round_index=0,
-        source="initial",
-        collector_config=cfg.collector,
-        executor=episodes.get(),
-        commit_every=cfg.commit_every,
-        desc="initial demos",
+    records = collect_initial_demos(
+        suite, dataset, cfg.initial_demos_per_task, cfg.seed, cfg.collector, episodes.get(), cfg.commit_every
     )
     print(format_collection_table(records))
     return {t: r.demos_added for t, r in records.items()}
