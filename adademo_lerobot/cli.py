@@ -1,20 +1,78 @@
 """Shared entry-point plumbing: draccus parsing with LeRobot's conventions and one-line errors.
 
 Commands parse first and import their implementation (torch, LeRobot, the simulators) only afterwards, so
-`--help`, a misspelled flag or a bad value answers at once. `--config_path` always goes straight to draccus so
-YAML recipes and presets work; for LeRobot's training config, `--policy.path` is taken out of the flags as
-`lerobot.configs.parser.wrap` does (the config reads it back with `parser.get_path_arg`).
+`--help`, a misspelled flag or a bad value answers at once. LeRobot's own config registries (policies, robots,
+teleoperators) import torch, so a command's config declares those fields with `lerobot_choice(kind)`: the first
+parse reads them as plain dicts (`--help`, flag errors and the config's `validate()` answer from it), and only
+then is LeRobot imported and the config parsed again with LeRobot's types in their place.
+
+`--config_path` always goes straight to draccus so YAML recipes and presets work; for LeRobot's training config,
+`--policy.path` is taken out of the flags as `lerobot.configs.parser.wrap` does (the config reads it back with
+`parser.get_path_arg`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
+import json
 import logging
 import sys
+import tempfile
+import typing
+from collections import defaultdict
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
+from adademo_lerobot.configs import LEROBOT_CHOICE
 from adademo_lerobot.errors import AdaDemoError
+
+
+def lerobot_choice_type(kind: str) -> type:
+    """LeRobot's config base class for `kind`, with every choice registered (this is the import that costs
+    seconds)."""
+    if kind == "policy":
+        import lerobot.policies  # noqa: F401  (registers ACT/Diffusion/... for --policy.type)
+        from lerobot.configs.policies import PreTrainedConfig
+
+        return PreTrainedConfig
+    # The robots and teleoperators lerobot-record knows, plus installed plugins, by type name.
+    import lerobot.scripts.lerobot_record  # noqa: F401
+    from lerobot.robots.config import RobotConfig
+    from lerobot.teleoperators.config import TeleoperatorConfig
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()
+    return {"robot": RobotConfig, "teleop": TeleoperatorConfig}[kind]
+
+
+def choice_fields(config_cls: type, prefix: str = "") -> dict[str, str]:
+    """Dotted path -> kind of every `lerobot_choice` field of a (nested) dataclass config."""
+    found = {}
+    hints = typing.get_type_hints(config_cls)
+    for f in dataclasses.fields(config_cls):
+        if LEROBOT_CHOICE in f.metadata:
+            found[prefix + f.name] = f.metadata[LEROBOT_CHOICE]
+        elif dataclasses.is_dataclass(hints[f.name]):
+            found.update(choice_fields(hints[f.name], f"{prefix}{f.name}."))
+    return found
+
+
+def with_lerobot_types(config_cls: type, types: dict[str, type]) -> type:
+    """`config_cls` with each dotted field of `types` retyped `T | None` (LeRobot's config in place of a dict)."""
+    own, nested = [], defaultdict(dict)
+    for path, kind_type in types.items():
+        head, _, rest = path.partition(".")
+        if rest:
+            nested[head][rest] = kind_type
+        else:
+            own.append((head, kind_type | None, dataclasses.field(default=None)))
+    hints = typing.get_type_hints(config_cls)
+    for head, sub_types in nested.items():
+        sub_cls = with_lerobot_types(hints[head], sub_types)
+        own.append((head, sub_cls, dataclasses.field(default_factory=sub_cls)))
+    return dataclasses.make_dataclass(config_cls.__name__, own, bases=(config_cls,))
 
 
 def _pop_arg(name: str, argv: list[str]) -> tuple[str | None, list[str]]:
@@ -33,38 +91,91 @@ def _pop_arg(name: str, argv: list[str]) -> tuple[str | None, list[str]]:
     return value, rest
 
 
-def parse_config(config_cls: type, argv: list[str], policy_types: bool = False) -> Any:
-    """Parse `config_cls` from argv. `policy_types`: the config holds a LeRobot policy config (`--policy.type`),
-    whose choices exist only once `lerobot.policies` is imported (several seconds: torch)."""
+def _fold_choice_args(args: list[str], paths: list[str]) -> list[str]:
+    """`--train.policy.type=act --train.policy.dim_model=64` -> `--train.policy={"type": "act", ...}` (values
+    stay strings: the first parse only needs to know what was given)."""
+    raw: dict[str, dict[str, str]] = {}
+    rest, i = [], 0
+    while i < len(args):
+        arg = args[i]
+        path = next((p for p in paths if arg.startswith(f"--{p}.")), None)
+        if path is None:
+            rest.append(arg)
+        else:
+            key, eq, value = arg[len(path) + 3 :].partition("=")
+            if not eq and i + 1 < len(args):
+                value, i = args[i + 1], i + 1
+            raw.setdefault(path, {})[key] = value
+        i += 1
+    return rest + [f"--{path}={json.dumps(values)}" for path, values in raw.items()]
+
+
+def parse_light(config_cls: type, argv: list[str], known_only: bool = False) -> Any:
+    """Parse `config_cls` without importing LeRobot (`lerobot_choice` fields become dicts). `known_only`:
+    flags and config-file keys the class does not know are left to a later parse instead of refused."""
     import draccus
+    import yaml
+    from draccus.argparsing import ArgumentParser
 
     config_path, args = _pop_arg("config_path", argv)
-    if policy_types:
-        import lerobot.policies  # noqa: F401  (registers ACT/Diffusion configs for --policy.type)
-    if hasattr(config_cls, "__get_path_fields__"):
+    args = _fold_choice_args(args, list(choice_fields(config_cls)))
+    if not known_only:
+        return draccus.parse(config_class=config_cls, config_path=config_path, args=args)
+    with tempfile.TemporaryDirectory() as tmp:
+        if config_path is not None:  # keep the keys this class knows (the rest is LeRobot's)
+            names = {f.name for f in dataclasses.fields(config_cls)}
+            content = yaml.safe_load(Path(config_path).read_text()) or {}
+            config_path = Path(tmp) / "known.yaml"
+            config_path.write_text(yaml.safe_dump({k: v for k, v in content.items() if k in names}))
+        parser = ArgumentParser(config_class=config_cls, config_path=config_path)
+        return parser.parse_known_args(args)[0]
+
+
+def parse_config(config_cls: type, argv: list[str]) -> Any:
+    """Parse the full config: `config_cls` with LeRobot's config types in its `lerobot_choice` fields (or a
+    LeRobot config itself)."""
+    import draccus
+
+    choices = choice_fields(config_cls)
+    if choices:
+        config_cls = with_lerobot_types(config_cls, {p: lerobot_choice_type(k) for p, k in choices.items()})
+    config_path, args = _pop_arg("config_path", argv)
+    if hasattr(config_cls, "__get_path_fields__"):  # LeRobot's training config: --policy.type / --policy.path
         from lerobot.configs import parser
 
+        lerobot_choice_type("policy")
         args = parser.filter_path_args(config_cls.__get_path_fields__(), args)
     return draccus.parse(config_class=config_cls, config_path=config_path, args=args)
 
 
-def _resolve(target: str | Callable) -> Callable:
-    if callable(target):
+def _resolve(target: str | Callable) -> Any:
+    if not isinstance(target, str):
         return target
     module, name = target.split(":")
     return getattr(importlib.import_module(module), name)
 
 
-def run_command(target: str | Callable, config_cls: type, policy_types: bool = False) -> None:
+def run_command(target: str | Callable, config_cls: type, lerobot_config: str | None = None) -> None:
     """Parse `config_cls` from the command line, then import and call `target` ("module:function") with it.
-    Bad input exits 2 with one `error:` line; Ctrl-C exits 130 saying how to resume."""
+
+    `--help`, flag errors and `config.validate()` answer from a first parse that imports no LeRobot config;
+    with `lerobot_choice` fields, or with `lerobot_config` ("module:Class", a LeRobot config of which
+    `config_cls` holds our own flags), the config is then parsed in full. Bad input exits 2 with one `error:`
+    line; Ctrl-C exits 130 saying how to resume."""
     import draccus
 
     # LeRobot logs every dataset open and video codec choice at INFO; ours and everyone's warnings show.
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
     logging.getLogger("adademo_lerobot").setLevel(logging.INFO)
+    argv = sys.argv[1:]
     try:
-        cfg = parse_config(config_cls, sys.argv[1:], policy_types)
+        cfg = parse_light(config_cls, argv, known_only=lerobot_config is not None)
+        if hasattr(cfg, "validate"):
+            cfg.validate()
+        if lerobot_config is not None:
+            cfg = parse_config(_resolve(lerobot_config), argv)
+        elif choice_fields(config_cls):
+            cfg = parse_config(config_cls, argv)
         _resolve(target)(cfg)
     except AdaDemoError as err:
         print(f"error: {err}", file=sys.stderr)

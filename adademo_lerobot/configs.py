@@ -3,10 +3,23 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
 from adademo_lerobot.executors import RayArgs
+from adademo_lerobot.samplers import check_sampler_flags
 from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
+
+LEROBOT_CHOICE = "lerobot_choice"  # field metadata: the kind of LeRobot config the field holds
+
+
+def lerobot_choice(kind: str) -> Any:
+    """A field holding LeRobot's `kind` config ("policy", "robot" or "teleop"), chosen with `--FIELD.type=NAME`.
+
+    LeRobot's config registries import torch (seconds), so the commands parse such a field as a plain dict
+    first (`--help`, flag errors and `validate()` answer from that) and with LeRobot's type only afterwards
+    (`adademo_lerobot.cli`)."""
+    return field(default=None, metadata={LEROBOT_CHOICE: kind})
 
 
 @dataclass
@@ -38,6 +51,31 @@ class CollectConfig:
     # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
     executor: str = "local"
     ray: RayArgs = field(default_factory=RayArgs)
+
+
+@dataclass
+class TrainSamplingArgs:
+    # trajectory (AdaDemo C) | task (uniform over tasks) | tempered (n_k ** sampler_alpha) | frame (LeRobot's default)
+    sampler: str = "trajectory"
+    # Minimum share of every task under `trajectory` / `tempered`, in [0, 1/num_tasks].
+    min_task_weight: float = 0.0
+    # `tempered`: a task's share is proportional to (its trajectories) ** sampler_alpha (1: trajectory, 0: task).
+    sampler_alpha: float = 1.0
+    # torch intra-op threads (2-core default; lower it when env worker processes run beside training).
+    torch_threads: int = 2
+    # Serve batches from tensors held in memory (datasets without camera frames); false: LeRobot's loading.
+    in_memory: bool = True
+
+    def validate(self) -> None:
+        check_sampler_flags(self.sampler, self.sampler_alpha)
+
+
+@dataclass
+class TrainCommandFlags(TrainSamplingArgs):
+    """adademo-train's own flags. Every flag of `lerobot-train` is accepted too: --dataset.repo_id/root,
+    --policy.type or --policy.path, --output_dir, --steps, --batch_size, --resume, optimizer, scheduler, wandb, ...
+    (`lerobot-train --help` lists them). Defaults that differ from lerobot-train: --steps=3000 --batch_size=64
+    --num_workers=0 --save_freq=1000 --env_eval_freq=0."""
 
 
 @dataclass

@@ -31,10 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from lerobot.robots.config import RobotConfig
-from lerobot.teleoperators.config import TeleoperatorConfig
 
-from adademo_lerobot.configs import PolicyPathArgs
+from adademo_lerobot.configs import PolicyPathArgs, lerobot_choice
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.layout import ADADEMO_DIR
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata, read_info
@@ -53,14 +51,6 @@ SOURCE = "human"
 KEYS_HELP = "n/Right = next, r/Left = redo, s = success, f = failure, q/Esc = stop"
 
 
-def register_devices() -> None:
-    """LeRobot's robots and teleoperators (the set lerobot-record knows) and installed plugins, by type name."""
-    import lerobot.scripts.lerobot_record  # noqa: F401  (imports every built-in robot/teleoperator config)
-    from lerobot.utils.import_utils import register_third_party_plugins
-
-    register_third_party_plugins()
-
-
 @dataclass
 class RecordDatasetArgs:
     repo_id: str = "local/robot"
@@ -72,8 +62,11 @@ class RecordDatasetArgs:
 
 @dataclass
 class RecordConfig:
-    robot: RobotConfig | None = None
-    teleop: TeleoperatorConfig | None = None
+    # The robot: --robot.type=NAME and its fields, any robot lerobot-record knows or an installed plugin
+    # (e.g. --robot.type=so101_follower --robot.port=/dev/ttyACM0; `lerobot-record --help` lists them).
+    robot: dict | None = lerobot_choice("robot")
+    # The person's teleoperator: --teleop.type=NAME and its fields (e.g. so101_leader).
+    teleop: dict | None = lerobot_choice("teleop")
     policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
     dataset: RecordDatasetArgs = field(default_factory=RecordDatasetArgs)
     # Tasks of this round, comma-separated (task strings of the dataset); default: every task of the dataset.
@@ -91,6 +84,31 @@ class RecordConfig:
     judge: str = "auto"
     seed: int = 0
     device: str = "cpu"
+
+    def validate(self) -> None:
+        """Checks of the flags alone (answered before LeRobot is imported: `adademo_lerobot.cli`)."""
+        if self.robot is None:
+            raise AdaDemoError("--robot.type is required (the robot to record with, e.g. so101_follower)")
+        if self.teleop is None:
+            raise AdaDemoError("--teleop.type is required (the person's teleoperator, e.g. so101_leader)")
+        if self.policy.path is None:
+            raise AdaDemoError("--policy.path is required (the policy whose failures the round answers)")
+        if self.dataset.root is None or not has_dataset(self.dataset.root):
+            raise AdaDemoError(
+                f"no LeRobot dataset at --dataset.root={self.dataset.root} (the dataset the policy was trained on, "
+                "recorded with this robot, e.g. by lerobot-record)"
+            )
+        for flag in ("target_successes", "max_demos_per_task", "max_attempts"):
+            if getattr(self, flag) < 1:
+                raise AdaDemoError(f"--{flag} must be >= 1, got {getattr(self, flag)}")
+        if self.max_eval_episodes_per_task is not None and self.max_eval_episodes_per_task < 1:
+            raise AdaDemoError(
+                f"--max_eval_episodes_per_task must be >= 1, got {self.max_eval_episodes_per_task}"
+            )
+        if self.dataset.episode_time_s <= 0:
+            raise AdaDemoError(f"--dataset.episode_time_s must be > 0, got {self.dataset.episode_time_s}")
+        if self.judge not in JUDGES:
+            raise AdaDemoError(f"--judge must be one of {', '.join(JUDGES)}, got {self.judge!r}")
 
 
 class StopRecording(Exception):  # noqa: N818  (a request, not an error)
@@ -181,29 +199,6 @@ def make_person(judge: str, teleop):
             )
         return TeleopPerson(teleop)
     return KeyboardPerson()
-
-
-def validate(cfg: RecordConfig) -> None:
-    if cfg.robot is None:
-        raise AdaDemoError("--robot.type is required (the robot to record with, e.g. so101_follower)")
-    if cfg.teleop is None:
-        raise AdaDemoError("--teleop.type is required (the person's teleoperator, e.g. so101_leader)")
-    if cfg.policy.path is None:
-        raise AdaDemoError("--policy.path is required (the policy whose failures the round answers)")
-    if cfg.dataset.root is None or not has_dataset(cfg.dataset.root):
-        raise AdaDemoError(
-            f"no LeRobot dataset at --dataset.root={cfg.dataset.root} (the dataset the policy was trained on, "
-            "recorded with this robot, e.g. by lerobot-record)"
-        )
-    for flag in ("target_successes", "max_demos_per_task", "max_attempts"):
-        if getattr(cfg, flag) < 1:
-            raise AdaDemoError(f"--{flag} must be >= 1, got {getattr(cfg, flag)}")
-    if cfg.max_eval_episodes_per_task is not None and cfg.max_eval_episodes_per_task < 1:
-        raise AdaDemoError(f"--max_eval_episodes_per_task must be >= 1, got {cfg.max_eval_episodes_per_task}")
-    if cfg.dataset.episode_time_s <= 0:
-        raise AdaDemoError(f"--dataset.episode_time_s must be > 0, got {cfg.dataset.episode_time_s}")
-    if cfg.judge not in JUDGES:
-        raise AdaDemoError(f"--judge must be one of {', '.join(JUDGES)}, got {cfg.judge!r}")
 
 
 def robot_features(robot, use_video: bool) -> dict[str, dict]:
@@ -508,7 +503,7 @@ def dataset_tasks(root: Path) -> list[str]:
 
 
 def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
-    validate(cfg)
+    cfg.validate()
     root = Path(cfg.dataset.root)
     check_dataset_integrity(root)
     from lerobot.robots.utils import make_robot_from_config

@@ -23,8 +23,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lerobot.configs.policies import PreTrainedConfig
-
 from adademo_lerobot.collect import collect_initial_demos, format_collection_table
 from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.configs import (
@@ -32,8 +30,10 @@ from adademo_lerobot.configs import (
     EvalBatchArgs,
     ExpandConfig,
     PolicyPathArgs,
+    TrainSamplingArgs,
     default_collector,
     default_suite,
+    lerobot_choice,
 )
 from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
@@ -57,18 +57,15 @@ from adademo_lerobot.start import (
 )
 from adademo_lerobot.strategies import STRATEGIES
 from adademo_lerobot.suites import SuiteConfig, make_suite, suite_config_from_dict
-from adademo_lerobot.train import AdaDemoTrainConfig, TrainDatasetConfig, find_last_checkpoint, train
 
 STEPS_SCHEDULES = ("constant", "proportional")
 
 
 @dataclass
-class RunTrainArgs:
-    policy: PreTrainedConfig | None = None
-    sampler: str = "trajectory"
-    min_task_weight: float = 0.0
-    # `tempered` sampler: a task's share is proportional to its trajectories ** sampler_alpha.
-    sampler_alpha: float = 1.0
+class RunTrainArgs(TrainSamplingArgs):
+    # The policy to train: --train.policy.type=act|diffusion and the fields of LeRobot's ACTConfig or
+    # DiffusionConfig (--train.policy.dim_model=64, ...). Optional with --policy.path (the checkpoint's own).
+    policy: dict | None = lerobot_choice("policy")
     batch_size: int = 32
     # Steps of the round-0 training.
     steps: int = 2000
@@ -80,10 +77,7 @@ class RunTrainArgs:
     # finetune: steps per round.
     finetune_steps: int = 1000
     save_freq: int = 1000
-    torch_threads: int = 2
     seed: int = 1000
-    # Training batches from tensors in memory (state datasets); false: LeRobot's per-sample loading.
-    in_memory: bool = True
 
 
 @dataclass
@@ -129,53 +123,54 @@ class RunConfig:
     hub_repo_id: str | None = None
     hub_private: bool = False
 
+    def validate(self) -> None:
+        """Checks of the flags alone (answered before LeRobot is imported: `adademo_lerobot.cli`)."""
+        if self.run_dir is None:
+            raise AdaDemoError("--run_dir is required (everything of the run goes there)")
+        if self.strategy not in STRATEGIES:
+            raise AdaDemoError(f"unknown --strategy={self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
+        if self.rounds < 0 or self.initial_demos_per_task < 1:
+            raise AdaDemoError("--rounds must be >= 0 and --initial_demos_per_task >= 1")
+        for name in ("target_successes", "max_demos_per_task", "demos_per_task", "budget"):
+            values = getattr(self, name)
+            optional = name in ("target_successes", "budget")
+            if (not values and not optional) or (values and min(values) < 1):
+                raise AdaDemoError(f"--{name} needs one or more values >= 1 (one per round), got {values}")
+        if self.budget and self.target_successes:
+            raise AdaDemoError(
+                f"--budget={self.budget} and --target_successes={self.target_successes} both set the rounds' "
+                "size: pass one (with a budget, E is picked to fit it)"
+            )
+        if self.strategy == "budgeted" and not self.budget:
+            raise AdaDemoError("--strategy=budgeted needs --budget=[B1,B2,...] (demonstrations per round)")
+        if self.dataset.root is not None and self.dataset.repo_id is None:
+            self.dataset.repo_id = f"local/{Path(self.dataset.root).name}"
+        if self.policy.path is not None and self.dataset.repo_id is None:
+            raise AdaDemoError(
+                "--policy.path needs the dataset to continue: --dataset.repo_id=USER/NAME (a hub dataset) or "
+                "--dataset.root=FOLDER (a local one)"
+            )
+        if self.dataset.revision is not None and self.dataset.root is not None:
+            raise AdaDemoError(
+                "--dataset.revision picks a hub revision; a local --dataset.root has none: drop one"
+            )
+        if self.train.policy is None and self.policy.path is None:
+            raise AdaDemoError(
+                "the recipe needs train.policy (e.g. --train.policy.type=act), or start from a checkpoint with "
+                "--policy.path=CKPT"
+            )
+        if self.train.mode not in ("scratch", "finetune"):
+            raise AdaDemoError(f"--train.mode must be scratch or finetune, got {self.train.mode!r}")
+        if self.train.steps_schedule not in STEPS_SCHEDULES:
+            raise AdaDemoError(f"--train.steps_schedule must be one of {', '.join(STEPS_SCHEDULES)}")
+        if self.push_to_hub and not self.hub_repo_id:
+            raise AdaDemoError("--push_to_hub=true needs --hub_repo_id=USER/NAME")
+        check_executor_args(self.executor, self.ray)
+        self.train.validate()
+
 
 def per_round(values: list[int], i: int) -> int:
     return values[min(i, len(values)) - 1]
-
-
-def validate(cfg: RunConfig) -> None:
-    if cfg.run_dir is None:
-        raise AdaDemoError("--run_dir is required (everything of the run goes there)")
-    if cfg.strategy not in STRATEGIES:
-        raise AdaDemoError(f"unknown --strategy={cfg.strategy!r}; choose one of {', '.join(STRATEGIES)}")
-    if cfg.rounds < 0 or cfg.initial_demos_per_task < 1:
-        raise AdaDemoError("--rounds must be >= 0 and --initial_demos_per_task >= 1")
-    for name in ("target_successes", "max_demos_per_task", "demos_per_task", "budget"):
-        values = getattr(cfg, name)
-        optional = name in ("target_successes", "budget")
-        if (not values and not optional) or (values and min(values) < 1):
-            raise AdaDemoError(f"--{name} needs one or more values >= 1 (one per round), got {values}")
-    if cfg.budget and cfg.target_successes:
-        raise AdaDemoError(
-            f"--budget={cfg.budget} and --target_successes={cfg.target_successes} both set the rounds' "
-            "size: pass one (with a budget, E is picked to fit it)"
-        )
-    if cfg.strategy == "budgeted" and not cfg.budget:
-        raise AdaDemoError("--strategy=budgeted needs --budget=[B1,B2,...] (demonstrations per round)")
-    if cfg.dataset.root is not None and cfg.dataset.repo_id is None:
-        cfg.dataset.repo_id = f"local/{Path(cfg.dataset.root).name}"
-    if cfg.policy.path is not None and cfg.dataset.repo_id is None:
-        raise AdaDemoError(
-            "--policy.path needs the dataset to continue: --dataset.repo_id=USER/NAME (a hub dataset) or "
-            "--dataset.root=FOLDER (a local one)"
-        )
-    if cfg.dataset.revision is not None and cfg.dataset.root is not None:
-        raise AdaDemoError(
-            "--dataset.revision picks a hub revision; a local --dataset.root has none: drop one"
-        )
-    if cfg.train.policy is None and cfg.policy.path is None:
-        raise AdaDemoError(
-            "the recipe needs train.policy (e.g. --train.policy.type=act), or start from a checkpoint with "
-            "--policy.path=CKPT"
-        )
-    if cfg.train.mode not in ("scratch", "finetune"):
-        raise AdaDemoError(f"--train.mode must be scratch or finetune, got {cfg.train.mode!r}")
-    if cfg.train.steps_schedule not in STEPS_SCHEDULES:
-        raise AdaDemoError(f"--train.steps_schedule must be one of {', '.join(STEPS_SCHEDULES)}")
-    if cfg.push_to_hub and not cfg.hub_repo_id:
-        raise AdaDemoError("--push_to_hub=true needs --hub_repo_id=USER/NAME")
-    check_executor_args(cfg.executor, cfg.ray)
 
 
 class RunState:
@@ -273,7 +268,7 @@ def saved_stage(run_dir: Path, name: str) -> dict | None:
 
 
 def run(cfg: RunConfig) -> Path:
-    validate(cfg)
+    cfg.validate()
     run_dir = Path(cfg.run_dir)
     start, started = None, saved_stage(run_dir, "start")
     if cfg.dataset.repo_id is not None and started is None:  # checked before anything is written
@@ -315,6 +310,8 @@ def run(cfg: RunConfig) -> Path:
                 if (
                     cfg.train.policy is None
                 ):  # no policy in the recipe: later rounds train the checkpoint's own
+                    from lerobot.configs.policies import PreTrainedConfig
+
                     cfg.train.policy = PreTrainedConfig.from_pretrained(checkpoint)
                     cfg.train.policy.pretrained_path = None
             if checkpoint is None:
@@ -418,6 +415,10 @@ def train_round(
 ) -> str:
     """Round i's policy; `base`: the last round of the dataset's history before the run (its size sets the
     proportional schedule)."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from adademo_lerobot.train import AdaDemoTrainConfig, TrainDatasetConfig, find_last_checkpoint, train
+
     out = run_dir / "train" / f"round-{i}"
     resume = find_last_checkpoint(out) is not None
     if out.exists() and not resume:

@@ -22,6 +22,7 @@ from lerobot.configs.train import TrainPipelineConfig
 from lerobot.configs.types import NormalizationMode
 from tqdm import tqdm
 
+from adademo_lerobot.configs import TrainCommandFlags
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.metadata import read_episode_metadata, try_load_suite_config
 from adademo_lerobot.dataset.store import recover_interrupted_write
@@ -29,7 +30,8 @@ from adademo_lerobot.dataset.video import video_backend
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.files import check_writable_location
 from adademo_lerobot.policy import POLICY_TYPES, check_policy_matches_features
-from adademo_lerobot.samplers import WeightedFrameSampler, frame_weights, make_sampling_scheme
+from adademo_lerobot.samplers import frame_weights, make_sampling_scheme
+from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 
 # Normalization floor: MetaWorld observations have constant dims (padding, unused objects); dividing by a
 # near-zero std turns float noise at evaluation time into huge inputs.
@@ -44,18 +46,10 @@ class TrainDatasetConfig(DatasetConfig):
 
 
 @dataclass
-class AdaDemoTrainConfig(TrainPipelineConfig):
+class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
+    """LeRobot's training config, our flags (`TrainCommandFlags`) and defaults for a 2-core machine."""
+
     dataset: TrainDatasetConfig
-    # trajectory (AdaDemo C) | task (uniform over tasks) | tempered (n_k ** sampler_alpha) | frame (LeRobot's default)
-    sampler: str = "trajectory"
-    # Minimum share of every task under `trajectory` / `tempered`, in [0, 1/num_tasks].
-    min_task_weight: float = 0.0
-    # `tempered`: a task's share is proportional to (its trajectories) ** sampler_alpha (1: trajectory, 0: task).
-    sampler_alpha: float = 1.0
-    # torch intra-op threads (2-core default; lower it when env worker processes run beside training).
-    torch_threads: int = 2
-    # Serve batches from tensors held in memory (datasets without camera frames); false: LeRobot's loading.
-    in_memory: bool = True
     num_workers: int = 0
     batch_size: int = 64
     steps: int = 3000

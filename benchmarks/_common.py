@@ -32,8 +32,9 @@ def collect(root: Path, tasks: str, per_task: int, seed: int = 0) -> Path:
     return root
 
 
-def train_small_act(dataset: Path, out: Path, steps: int = 50, extra: tuple[str, ...] = ()) -> Path:
-    sh(
+def train_act(dataset: Path, out: Path, steps: int, *extra: str) -> subprocess.CompletedProcess:
+    """`adademo-train` of the small state ACT preset (`policies/act_state_cpu.yaml`); its output has the speed."""
+    return sh(
         BIN / "adademo-train",
         f"--config_path={ROOT / 'policies' / 'act_state_cpu.yaml'}",
         "--dataset.repo_id=local/bench",
@@ -43,6 +44,10 @@ def train_small_act(dataset: Path, out: Path, steps: int = 50, extra: tuple[str,
         f"--output_dir={out}",
         *extra,
     )
+
+
+def train_small_act(dataset: Path, out: Path, steps: int = 50) -> Path:
+    train_act(dataset, out, steps)
     return out / "checkpoints" / "last" / "pretrained_model"
 
 

@@ -35,6 +35,8 @@ import numpy as np
 import pandas as pd
 from _common import BIN, RESULTS, ROOT, machine_line
 
+from adademo_lerobot.tables import table
+
 RECIPE = ROOT / "recipes" / "budgeted.yaml"
 CANDIDATES = (
     "reach-v3,push-v3,pick-place-v3,door-open-v3,drawer-open-v3,drawer-close-v3,button-press-topdown-v3,"
@@ -87,9 +89,7 @@ def branch_from_base(base: Path, arm_dir: Path, flags: list[str]) -> None:
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(base, tmp, ignore=shutil.ignore_patterns("report"))
     state = json.loads((tmp / "run_state.json").read_text())
-    cfg = parse_config(
-        RunConfig, [f"--config_path={RECIPE}", f"--run_dir={arm_dir}", *flags], policy_types=True
-    )
+    cfg = parse_config(RunConfig, [f"--config_path={RECIPE}", f"--run_dir={arm_dir}", *flags])
     state["settings"].update(run_settings(cfg, state["settings"]["suite"]))
     state["done"] = {k: v for k, v in state["done"].items() if k in ("collect", "train-0", "eval-0")}
     train0 = state["done"]["train-0"]
@@ -123,24 +123,40 @@ def phase_select(out: Path, candidates: str, name: str) -> None:
 
 def phase_noise(out: Path) -> None:
     """The same round trained twice with different training seeds, on unchanged data: how far the average moves.
-    Round 0 of seed 0 with training seeds 1000 (the base) and 2000, and a uniform round 1 likewise."""
+    Round 0 of seed 0 with training seeds 1000 (the base) and 2000; once seed 0's Uniform arm has finished, its
+    round-3 dataset likewise (a run continued from that dataset, trained with the same steps and sampler)."""
     base = out / "seed0" / "base"
     adademo_run(base, "--rounds=0", *seed_flags(0))
     twin = out / "noise" / "base_trainseed2000"
     adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000")
-    rows = []
-    for name, a, b in (("round 0", base, twin),):
-        ra, rb = eval_table(a, 0), eval_table(b, 0)
-        tasks = [t for t in ra if t != "average"]
-        rows.append(
-            (name, 100 * ra["average"], 100 * rb["average"], max(abs(100 * (ra[t] - rb[t])) for t in tasks))
+    pairs = [("round 0", eval_table(base, 0), eval_table(twin, 0))]
+    uniform = out / "seed0" / "uniform"
+    if (uniform / "eval" / "round-003" / "eval_summary.json").exists():
+        trained = json.loads((uniform / "run_state.json").read_text())["done"]["train-3"]["result"]
+        steps = int(Path(trained).parent.name)  # .../checkpoints/<step>/pretrained_model
+        twin3 = out / "noise" / "uniform_round3_trainseed2000"
+        adademo_run(
+            twin3,
+            f"--dataset.root={uniform / 'dataset'}",
+            "--rounds=0",
+            f"--train.steps={steps}",
+            *ALL_ARMS["uniform"],
+            "--seed=0",
+            "--train.seed=2000",
         )
-    lines = [
-        "| trained | avg SR % (train seed 1000) | avg SR % (train seed 2000) | largest task difference |",
-        "| --- | --- | --- | --- |",
-        *[f"| {n} | {x:.1f} | {y:.1f} | {d:.0f} |" for n, x, y, d in rows],
+        pairs.append(("round 3 (Uniform's data, seed 0)", eval_table(uniform, 3), eval_table(twin3, 0)))
+    rows = []
+    for name, ra, rb in pairs:
+        tasks = [t for t in ra if t != "average"]
+        diff = max(abs(100 * (ra[t] - rb[t])) for t in tasks)
+        rows.append([name, f"{100 * ra['average']:.1f}", f"{100 * rb['average']:.1f}", f"{diff:.0f}"])
+    headers = [
+        "trained",
+        "avg SR % (train seed 1000)",
+        "avg SR % (train seed 2000)",
+        "largest task difference",
     ]
-    (out / "noise.md").write_text("\n".join(lines) + "\n")
+    (out / "noise.md").write_text(table(headers, rows, aligned=False) + "\n")
     print((out / "noise.md").read_text())
 
 
@@ -164,6 +180,12 @@ def demos_to_reach(x: np.ndarray, y: np.ndarray, target: float) -> float | None:
         if y[k] >= target:
             return float(x[k - 1] + (target - y[k - 1]) / (y[k] - y[k - 1]) * (x[k] - x[k - 1]))
     return None
+
+
+def arm_table(column: str, cell) -> str:
+    """One row per arm, one column per round 0-3."""
+    headers = ["arm", *(f"{column} {r}" for r in range(4))]
+    return table(headers, [[LABELS[arm], *(cell(arm, r) for r in range(4))] for arm in ARMS], aligned=False)
 
 
 def phase_report(out: Path, seeds: list[int]) -> None:
@@ -215,19 +237,14 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         "in strategy and sampler (see the script's docstring). Success on the same 50 fixed initial states per task "
         "every round; mean ± std over seeds; in brackets the demos per task after the round.",
         "",
-        "| arm | " + " | ".join(f"round {r}" for r in range(4)) + " |",
-        "| --- |" + " --- |" * 4,
+        arm_table(
+            "round",
+            lambda arm, r: (
+                f"{100 * avg[arm][:, r].mean():.1f} ± {100 * avg[arm][:, r].std():.1f} "
+                f"({demos[arm].mean(axis=(0, 1))[r]:.1f})"
+            ),
+        ),
     ]
-    for arm in ARMS:
-        mean_demos = demos[arm].mean(axis=(0, 1))
-        lines.append(
-            f"| {LABELS[arm]} | "
-            + " | ".join(
-                f"{100 * avg[arm][:, r].mean():.1f} ± {100 * avg[arm][:, r].std():.1f} ({mean_demos[r]:.1f})"
-                for r in range(4)
-            )
-            + " |"
-        )
     lines += [
         "",
         "Per task, round 3 (mean over seeds) and the paired difference to Uniform (same seed, same task):",
@@ -265,15 +282,10 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         "Success against every episode spent per task (demonstrations + evaluation episodes, the cost the paper "
         "leaves out), cumulative over rounds 1-3:",
         "",
-        "| arm | " + " | ".join(f"after round {r}" for r in range(4)) + " |",
-        "| --- |" + " --- |" * 4,
+        arm_table(
+            "after round", lambda arm, r: f"{100 * avg[arm][:, r].mean():.1f} % @ {episodes[arm][r]:.1f}"
+        ),
     ]
-    for arm in ARMS:
-        lines.append(
-            f"| {LABELS[arm]} | "
-            + " | ".join(f"{100 * avg[arm][:, r].mean():.1f} % @ {episodes[arm][r]:.1f}" for r in range(4))
-            + " |"
-        )
     plot(
         {arm: (added[arm], avg[arm].mean(axis=0), avg[arm].std(axis=0)) for arm in ARMS},
         RESULTS / "data_efficiency.png",

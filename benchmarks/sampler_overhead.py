@@ -16,23 +16,13 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from _common import BIN, RESULTS, ROOT, collect, machine_line, sh
+from _common import RESULTS, collect, machine_line, train_act
 
 TASKS = "reach-v3,push-v3,pick-place-v3,drawer-open-v3,button-press-topdown-v3,peg-insert-side-v3"
 
 
 def steps_per_second(dataset: Path, out: Path, sampler: str, steps: int) -> float:
-    proc = sh(
-        BIN / "adademo-train",
-        f"--config_path={ROOT / 'policies' / 'act_state_cpu.yaml'}",
-        "--dataset.repo_id=local/bench",
-        f"--dataset.root={dataset}",
-        f"--steps={steps}",
-        f"--save_freq={steps}",
-        f"--output_dir={out}",
-        f"--sampler={sampler}",
-        "--min_task_weight=0.05",
-    )
+    proc = train_act(dataset, out, steps, f"--sampler={sampler}", "--min_task_weight=0.05")
     steps_done, seconds = re.search(r"trained (\d+) steps in ([0-9.]+) s", proc.stdout).groups()
     return int(steps_done) / float(seconds)
 

@@ -16,21 +16,17 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from _common import BIN, RESULTS, ROOT, collect, machine_line, sh
+from _common import RESULTS, collect, machine_line, train_act
 
 
 def train(dataset: Path, out: Path, steps: int, in_memory: bool) -> tuple[float, float]:
-    proc = sh(
-        BIN / "adademo-train",
-        f"--config_path={ROOT / 'policies' / 'act_state_cpu.yaml'}",
-        "--dataset.repo_id=local/bench",
-        f"--dataset.root={dataset}",
-        f"--steps={steps}",
+    proc = train_act(
+        dataset,
+        out,
+        steps,
         f"--log_freq={steps // 2}",
-        f"--save_freq={steps}",
         f"--in_memory={str(in_memory).lower()}",
         "--torch_threads=2",
-        f"--output_dir={out}",
     )
     rate = float(re.search(r"trained \d+ steps in [0-9.]+ s \(([0-9.]+) steps/s\)", proc.stdout).group(1))
     update, data = (float(x) for x in re.findall(r"updt_s:([0-9.]+) data_s:([0-9.]+)", proc.stdout)[-1])

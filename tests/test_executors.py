@@ -203,14 +203,20 @@ def evaluations_so_far(root: Path) -> int:
     )
 
 
+def reference_round_and_copy(dataset: Path, ckpt, tmp_path: Path) -> tuple[Path, Path]:
+    """A copy of the dataset expanded locally without faults (the reference) and an untouched copy."""
+    reference, other = tmp_path / "reference", tmp_path / "other"
+    shutil.copytree(dataset, reference)
+    shutil.copytree(dataset, other)
+    run_cli("adademo-expand", *expand_args(reference, ckpt))
+    return reference, other
+
+
 @pytest.mark.slow
 def test_a_killed_worker_is_replaced_and_the_round_is_complete_and_the_same(
     reach_push_dataset, ckpt, ray_address, tmp_path
 ):
-    reference, faulty = tmp_path / "reference", tmp_path / "faulty"
-    shutil.copytree(reach_push_dataset, reference)
-    shutil.copytree(reach_push_dataset, faulty)
-    run_cli("adademo-expand", *expand_args(reference, ckpt))
+    reference, faulty = reference_round_and_copy(reach_push_dataset, ckpt, tmp_path)
     proc = subprocess.Popen(
         [str(BIN / "adademo-expand"), *expand_args(faulty, ckpt), *ray_flags(ray_address)],
         stdout=subprocess.PIPE,
@@ -230,10 +236,7 @@ def test_a_killed_worker_is_replaced_and_the_round_is_complete_and_the_same(
 def test_a_killed_driver_resumes_from_the_journal_to_the_same_round(
     reach_push_dataset, ckpt, ray_address, tmp_path
 ):
-    reference, resumed = tmp_path / "reference", tmp_path / "resumed"
-    shutil.copytree(reach_push_dataset, reference)
-    shutil.copytree(reach_push_dataset, resumed)
-    run_cli("adademo-expand", *expand_args(reference, ckpt))
+    reference, resumed = reference_round_and_copy(reach_push_dataset, ckpt, tmp_path)
     args = [*expand_args(resumed, ckpt), *ray_flags(ray_address)]
     proc = subprocess.Popen(
         [str(BIN / "adademo-expand"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL

@@ -5,7 +5,8 @@ import pandas as pd
 import pytest
 
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.samplers import WeightedFrameSampler, floor_shares, frame_weights, make_sampling_scheme
+from adademo_lerobot.samplers import floor_shares, frame_weights, make_sampling_scheme
+from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 
 # Three tasks with very different demo counts and episode lengths.
 SPEC = {"easy": (2, 100), "mid": (6, 50), "hard": (12, 20)}  # task: (episodes, frames per episode)

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "adademo_lerobot"
+QUICKSTART = f"--config_path={PACKAGE.parent / 'recipes' / 'quickstart.yaml'}"
 
 # Lower layers never import higher ones. A module's layer is that of the longest matching prefix.
 LAYERS = [
@@ -168,6 +169,24 @@ print("RESULT", code, "torch" in sys.modules, "lerobot" in sys.modules)
         ("push", ["--help"], 0),
         ("push", ["--dataset.root=/nonexistent/ds", "--repo_id=bad id"], 2),
         ("report", ["--run_dir=/nonexistent/run"], 2),
+        # the commands whose configs hold LeRobot's policy / robot / teleoperator configs (registries that
+        # import torch) answer these from their first parse
+        ("run", ["--help"], 0),
+        ("run", [QUICKSTART, "--run_dir=/tmp/r", "--rounds=x"], 2),
+        ("run", [QUICKSTART, "--run_dir=/tmp/r", "--strategy=greedy"], 2),
+        ("run", ["--run_dir=/tmp/r", "--train.policy.type=act", "--budget=[5]", "--target_successes=[3]"], 2),
+        ("run", ["--run_dir=/tmp/r"], 2),  # no policy to train
+        ("train", ["--help"], 0),
+        ("train", ["--policy.type=act", "--dataset.root=/d", "--sampler=greedy"], 2),
+        ("train", ["--policy.type=act", "--sampler_alpha=-1"], 2),
+        ("record", ["--help"], 0),
+        ("record", ["--robot.type=so101_follower", "--robot.port=/dev/x"], 2),  # no teleoperator
+        ("record", ["--robot.type=so101_follower", "--teleop.type=so101_leader", "--policy.path=p"], 2),
+        (
+            "record",
+            ["--robot.type=x", "--teleop.type=y", "--policy.path=p", "--dataset.root=/d", "--judge=z"],
+            2,
+        ),
     ],
 )
 def test_commands_answer_bad_input_and_help_without_importing_torch(script, args, expected_code):

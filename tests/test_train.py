@@ -246,7 +246,7 @@ def test_the_weighted_sampler_is_sharded_across_processes():
     from accelerate.data_loader import prepare_data_loader
     from torch.utils.data import DataLoader
 
-    from adademo_lerobot.samplers import WeightedFrameSampler
+    from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 
     weights = np.linspace(1.0, 3.0, 50)
     weights /= weights.sum()

@@ -102,15 +102,19 @@ class TaskUniform(Tempered):
 SAMPLERS = ("trajectory", "task", "frame", "tempered")
 
 
-def make_sampling_scheme(
-    name: str, min_task_weight: float, num_tasks: int, alpha: float = 1.0
-) -> SamplingScheme:
+def check_sampler_flags(name: str, alpha: float) -> None:
     if name not in SAMPLERS:
         raise AdaDemoError(f"unknown --sampler={name!r}; choose one of {', '.join(SAMPLERS)}")
     if alpha < 0:
         raise AdaDemoError(
             f"--sampler_alpha must be >= 0 (0: task-uniform, 1: trajectory-uniform), got {alpha}"
         )
+
+
+def make_sampling_scheme(
+    name: str, min_task_weight: float, num_tasks: int, alpha: float = 1.0
+) -> SamplingScheme:
+    check_sampler_flags(name, alpha)
     if not 0.0 <= min_task_weight <= 1.0 / max(num_tasks, 1) + 1e-12:
         raise AdaDemoError(
             f"--min_task_weight={min_task_weight} must be in [0, 1/num_tasks] = [0, {1 / max(num_tasks, 1):.4f}]"

@@ -1,11 +1,11 @@
 """adademo-run: the whole AdaDemo loop from a recipe (collect, train, then rounds of expand/retrain/evaluate)."""
 
 from adademo_lerobot.cli import run_command
-from adademo_lerobot.run import RunConfig, run
+from adademo_lerobot.run import RunConfig
 
 
 def main() -> None:
-    run_command(run, RunConfig, policy_types=True)
+    run_command("adademo_lerobot.run:run", RunConfig)
 
 
 if __name__ == "__main__":

@@ -1,11 +1,11 @@
 """adademo-train: train ACT or Diffusion with AdaDemo's episode-weighted sampler."""
 
 from adademo_lerobot.cli import run_command
-from adademo_lerobot.train import AdaDemoTrainConfig, train
+from adademo_lerobot.configs import TrainCommandFlags
 
 
 def main() -> None:
-    run_command(train, AdaDemoTrainConfig, policy_types=True)
+    run_command("adademo_lerobot.train:train", TrainCommandFlags, "adademo_lerobot.train:AdaDemoTrainConfig")
 
 
 if __name__ == "__main__":

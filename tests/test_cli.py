@@ -1,0 +1,59 @@
+"""The two parses of a command: the first (no LeRobot import) reads LeRobot's choice fields as dicts, the full one
+as LeRobot's configs, from the same flags and recipe."""
+
+from pathlib import Path
+
+from lerobot.configs.policies import PreTrainedConfig
+
+from adademo_lerobot.cli import parse_config, parse_light
+from adademo_lerobot.configs import TrainCommandFlags
+from adademo_lerobot.record import RecordConfig
+from adademo_lerobot.run import RunConfig
+from adademo_lerobot.train import AdaDemoTrainConfig
+
+RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "quickstart.yaml"
+
+
+def test_run_recipe_policy_is_a_dict_first_and_lerobots_config_in_full():
+    argv = [f"--config_path={RECIPE}", "--run_dir=/tmp/r", "--train.policy.dim_model=32", "--rounds=3"]
+    light = parse_light(RunConfig, argv)
+    assert light.train.policy["type"] == "act" and light.train.policy["dim_model"] == "32"  # flag over recipe
+    assert light.train.policy["n_heads"] == 4  # the recipe's own field kept beside the flag
+    full = parse_config(RunConfig, argv)
+    assert isinstance(full.train.policy, PreTrainedConfig) and full.train.policy.type == "act"
+    assert (full.train.policy.dim_model, full.train.policy.n_heads) == (32, 4)
+    assert (full.rounds, light.rounds) == (3, 3) and full.suite == light.suite
+    assert isinstance(full, RunConfig)  # the full config is the light one with LeRobot's types in place
+    full.validate()
+
+
+def test_record_devices_are_lerobots_configs_in_full():
+    argv = [
+        "--robot.type=adademo_sim",
+        "--robot.task=reach-v3",
+        "--teleop.type=adademo_scripted",
+        "--policy.path=/p",
+        "--dataset.root=/d",
+    ]
+    light = parse_light(RecordConfig, argv)
+    assert light.robot == {"type": "adademo_sim", "task": "reach-v3"} and light.teleop == {
+        "type": "adademo_scripted"
+    }
+    full = parse_config(RecordConfig, argv)
+    assert (full.robot.type, full.teleop.type) == ("adademo_sim", "adademo_scripted")
+    assert full.robot.task == "reach-v3"
+
+
+def test_train_own_flags_parse_first_and_lerobot_flags_in_full():
+    argv = [
+        "--policy.type=act",
+        "--dataset.repo_id=x/y",
+        "--steps=7",
+        "--sampler=tempered",
+        "--sampler_alpha=0.5",
+    ]
+    light = parse_light(TrainCommandFlags, argv, known_only=True)
+    assert (light.sampler, light.sampler_alpha) == ("tempered", 0.5)
+    full = parse_config(AdaDemoTrainConfig, argv)
+    assert (full.sampler, full.sampler_alpha, full.steps, full.policy.type) == ("tempered", 0.5, 7, "act")
+    assert full.batch_size == 64  # our default over lerobot-train's
