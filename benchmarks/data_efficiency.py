@@ -123,28 +123,32 @@ def phase_select(out: Path, candidates: str, name: str) -> None:
 
 def phase_noise(out: Path) -> None:
     """The same round trained twice with different training seeds, on unchanged data: how far the average moves.
-    Round 0 of seed 0 with training seeds 1000 (the base) and 2000; once seed 0's Uniform arm has finished, its
-    round-3 dataset likewise (a run continued from that dataset, trained with the same steps and sampler)."""
+    Round 0 of seed 0 with training seeds 1000 (the base) and 2000; then, for seed 0's Uniform and tempered arms
+    once finished, their round-3 dataset likewise (a run continued from that dataset, with the same steps and
+    sampler as the arm's round-3 training)."""
     base = out / "seed0" / "base"
     adademo_run(base, "--rounds=0", *seed_flags(0))
     twin = out / "noise" / "base_trainseed2000"
     adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000")
     pairs = [("round 0", eval_table(base, 0), eval_table(twin, 0))]
-    uniform = out / "seed0" / "uniform"
-    if (uniform / "eval" / "round-003" / "eval_summary.json").exists():
-        trained = json.loads((uniform / "run_state.json").read_text())["done"]["train-3"]["result"]
+    for arm in ("uniform", "adademo_tempered", "budgeted_tempered"):
+        arm_dir = out / "seed0" / arm
+        if not (arm_dir / "eval" / "round-003" / "eval_summary.json").exists():
+            continue
+        trained = json.loads((arm_dir / "run_state.json").read_text())["done"]["train-3"]["result"]
         steps = int(Path(trained).parent.name)  # .../checkpoints/<step>/pretrained_model
-        twin3 = out / "noise" / "uniform_round3_trainseed2000"
+        twin3 = out / "noise" / f"{arm}_round3_trainseed2000"
         adademo_run(
             twin3,
-            f"--dataset.root={uniform / 'dataset'}",
+            f"--dataset.root={arm_dir / 'dataset'}",
             "--rounds=0",
             f"--train.steps={steps}",
-            *ALL_ARMS["uniform"],
+            *ALL_ARMS[arm],
             "--seed=0",
             "--train.seed=2000",
         )
-        pairs.append(("round 3 (Uniform's data, seed 0)", eval_table(uniform, 3), eval_table(twin3, 0)))
+        label = f"round 3 ({LABELS[arm].split(' (')[0]}'s data, seed 0)"
+        pairs.append((label, eval_table(arm_dir, 3), eval_table(twin3, 0)))
     rows = []
     for name, ra, rb in pairs:
         tasks = [t for t in ra if t != "average"]
@@ -294,7 +298,10 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         if path.exists():
             lines += ["", f"## {path.stem}", "", path.read_text()]
     lines += ["", "![success vs added demos](data_efficiency.png)"]
-    (RESULTS / "data_efficiency.md").write_text("\n".join(lines) + "\n")
+    results = RESULTS / "data_efficiency.md"
+    # The analysis is written by hand under "## Reading" at the end; a new report keeps it (to be revised).
+    reading = results.read_text().partition("\n## Reading")[2] if results.exists() else ""
+    results.write_text("\n".join(lines) + "\n" + (f"\n## Reading{reading}" if reading else ""))
     print("\n".join(lines))
 
 
