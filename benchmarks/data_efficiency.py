@@ -123,7 +123,7 @@ def phase_select(out: Path, candidates: str, name: str) -> None:
 
 def phase_noise(out: Path) -> None:
     """The same round trained twice with different training seeds, on unchanged data: how far the average moves.
-    Round 0 of seed 0 with training seeds 1000 (the base) and 2000; then, for seed 0's Uniform and tempered arms
+    Round 0 of seed 0 with training seeds 1000 (the base) and 2000; then, for each of seed 0's arms
     once finished, their round-3 dataset likewise (a run continued from that dataset, with the same steps and
     sampler as the arm's round-3 training)."""
     base = out / "seed0" / "base"
@@ -131,7 +131,7 @@ def phase_noise(out: Path) -> None:
     twin = out / "noise" / "base_trainseed2000"
     adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000")
     pairs = [("round 0", eval_table(base, 0), eval_table(twin, 0))]
-    for arm in ("uniform", "adademo_tempered", "budgeted_tempered"):
+    for arm in ALL_ARMS:
         arm_dir = out / "seed0" / arm
         if not (arm_dir / "eval" / "round-003" / "eval_summary.json").exists():
             continue
@@ -151,13 +151,17 @@ def phase_noise(out: Path) -> None:
         pairs.append((label, eval_table(arm_dir, 3), eval_table(twin3, 0)))
     rows = []
     for name, ra, rb in pairs:
-        tasks = [t for t in ra if t != "average"]
-        diff = max(abs(100 * (ra[t] - rb[t])) for t in tasks)
-        rows.append([name, f"{100 * ra['average']:.1f}", f"{100 * rb['average']:.1f}", f"{diff:.0f}"])
+        a, b = 100 * ra["average"], 100 * rb["average"]
+        largest = max(abs(100 * (ra[t] - rb[t])) for t in ra if t != "average")
+        rows.append(
+            [name, f"{a:.1f}", f"{b:.1f}", f"{abs(a - b):.1f}", f"{(a + b) / 2:.1f}", f"{largest:.0f}"]
+        )
     headers = [
         "trained",
         "avg SR % (train seed 1000)",
         "avg SR % (train seed 2000)",
+        "difference",
+        "mean of the two",
         "largest task difference",
     ]
     (out / "noise.md").write_text(table(headers, rows, aligned=False) + "\n")
