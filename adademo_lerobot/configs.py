@@ -6,10 +6,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
+from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.executors import RayArgs
 from adademo_lerobot.samplers import check_sampler_flags
 from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
 
+LR_SCHEDULES = ("preset", "cosine")
 LEROBOT_CHOICE = "lerobot_choice"  # field metadata: the kind of LeRobot config the field holds
 
 
@@ -65,9 +67,16 @@ class TrainSamplingArgs:
     torch_threads: int = 2
     # Serve batches from tensors held in memory (datasets without camera frames); false: LeRobot's loading.
     in_memory: bool = True
+    # `preset`: the policy's own learning-rate schedule (ACT: constant); `cosine`: a short warmup, then cosine
+    # decay to a hundredth of the policy's learning rate at the last step (a steadier last checkpoint).
+    lr_schedule: str = "preset"
 
     def validate(self) -> None:
         check_sampler_flags(self.sampler, self.sampler_alpha)
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise AdaDemoError(
+                f"--lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}"
+            )
 
 
 @dataclass

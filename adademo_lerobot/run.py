@@ -249,6 +249,7 @@ def run_settings(cfg: RunConfig, suite: dict) -> dict:
         "train_mode": cfg.train.mode,
         "min_task_weight": cfg.train.min_task_weight,
         "sampler_alpha": cfg.train.sampler_alpha,
+        "lr_schedule": cfg.train.lr_schedule,
         "start": None
         if cfg.dataset.repo_id is None
         else {
@@ -449,6 +450,7 @@ def train_round(
         sampler_alpha=cfg.train.sampler_alpha,
         torch_threads=cfg.train.torch_threads,
         in_memory=cfg.train.in_memory,
+        lr_schedule=cfg.train.lr_schedule,
     )
     return str(train(train_cfg).resolve())
 

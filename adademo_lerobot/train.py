@@ -106,6 +106,17 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
         if self.use_policy_training_preset:
             self.optimizer = self.policy.get_optimizer_preset()
             self.scheduler = self.policy.get_scheduler_preset()
+        TrainCommandFlags.validate(self)
+        if self.lr_schedule == "cosine":
+            from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
+
+            lr = self.optimizer.lr
+            self.scheduler = CosineDecayWithWarmupSchedulerConfig(
+                num_warmup_steps=max(1, self.steps // 50),
+                num_decay_steps=self.steps,
+                peak_lr=lr,
+                decay_lr=lr / 100,
+            )
 
 
 def find_last_checkpoint(output_dir: Path) -> Path | None:

@@ -3,6 +3,7 @@ budgeted strategy, at equal demonstrations per round, with the noise of the meas
 
     python benchmarks/data_efficiency.py select              # round-0 table of candidate tasks -> the task set
     python benchmarks/data_efficiency.py noise               # noise floor: one round trained twice, two seeds
+    python benchmarks/data_efficiency.py noise --arms budgeted_tempered --lr_schedule cosine   # with another schedule
     python benchmarks/data_efficiency.py arms --seeds 0 1 2 [--arms uniform adademo ...] [--torch_threads 1]
     python benchmarks/data_efficiency.py report --seeds 0 1 2
 
@@ -121,34 +122,54 @@ def phase_select(out: Path, candidates: str, name: str) -> None:
     print(table)
 
 
-def phase_noise(out: Path) -> None:
-    """The same round trained twice with different training seeds, on unchanged data: how far the average moves.
-    Round 0 of seed 0 with training seeds 1000 (the base) and 2000; then, for each of seed 0's arms
-    once finished, their round-3 dataset likewise (a run continued from that dataset, with the same steps and
-    sampler as the arm's round-3 training)."""
-    base = out / "seed0" / "base"
-    adademo_run(base, "--rounds=0", *seed_flags(0))
-    twin = out / "noise" / "base_trainseed2000"
-    adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000")
-    pairs = [("round 0", eval_table(base, 0), eval_table(twin, 0))]
-    for arm in ALL_ARMS:
+def retrain_round3(out: Path, arm: str, train_seed: int, lr_schedule: str) -> Path:
+    """Seed 0's round-3 data of `arm` trained again (a run continued from that dataset, with the steps and sampler
+    of the arm's own round-3 training) with another training seed and/or learning-rate schedule."""
+    arm_dir = out / "seed0" / arm
+    trained = json.loads((arm_dir / "run_state.json").read_text())["done"]["train-3"]["result"]
+    steps = int(Path(trained).parent.name)  # .../checkpoints/<step>/pretrained_model
+    schedule = [] if lr_schedule == "preset" else [f"--train.lr_schedule={lr_schedule}"]
+    name = f"{arm}_round3{'' if lr_schedule == 'preset' else '_' + lr_schedule}_trainseed{train_seed}"
+    adademo_run(
+        out / "noise" / name,
+        f"--dataset.root={arm_dir / 'dataset'}",
+        "--rounds=0",
+        f"--train.steps={steps}",
+        *ALL_ARMS[arm],
+        *schedule,
+        "--seed=0",
+        f"--train.seed={train_seed}",
+    )
+    return out / "noise" / name
+
+
+def phase_noise(out: Path, arms: list[str], lr_schedule: str, train_seeds: list[int]) -> None:
+    """The same round trained twice with different training seeds (1000, 2000), on unchanged data: how far the
+    average moves. `preset` (the recipe's schedule): round 0 of seed 0 (the base and a twin) and each finished
+    seed-0 arm's round 3 (its own training and a twin). Another `lr_schedule`: each arm's round-3 data trained with
+    it and both seeds. `train_seeds` limits which trainings this call runs (two calls can share the machine)."""
+    pairs = []
+    if lr_schedule == "preset":
+        base = out / "seed0" / "base"
+        adademo_run(base, "--rounds=0", *seed_flags(0))
+        twin = out / "noise" / "base_trainseed2000"
+        adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000")
+        pairs.append(("round 0", eval_table(base, 0), eval_table(twin, 0)))
+    for arm in arms:
         arm_dir = out / "seed0" / arm
         if not (arm_dir / "eval" / "round-003" / "eval_summary.json").exists():
             continue
-        trained = json.loads((arm_dir / "run_state.json").read_text())["done"]["train-3"]["result"]
-        steps = int(Path(trained).parent.name)  # .../checkpoints/<step>/pretrained_model
-        twin3 = out / "noise" / f"{arm}_round3_trainseed2000"
-        adademo_run(
-            twin3,
-            f"--dataset.root={arm_dir / 'dataset'}",
-            "--rounds=0",
-            f"--train.steps={steps}",
-            *ALL_ARMS[arm],
-            "--seed=0",
-            "--train.seed=2000",
-        )
-        label = f"round 3 ({LABELS[arm].split(' (')[0]}'s data, seed 0)"
-        pairs.append((label, eval_table(arm_dir, 3), eval_table(twin3, 0)))
+        own = (
+            {1000: arm_dir} if lr_schedule == "preset" else {}
+        )  # the arm's round 3 was trained with seed 1000
+        runs = {seed: retrain_round3(out, arm, seed, lr_schedule) for seed in train_seeds if seed not in own}
+        runs.update(own)
+        if set(runs) >= {1000, 2000}:
+            first, second = (
+                eval_table(runs[1000], 3 if runs[1000] == arm_dir else 0),
+                eval_table(runs[2000], 0),
+            )
+            pairs.append((f"round 3 ({LABELS[arm].split(' (')[0]}'s data, seed 0)", first, second))
     rows = []
     for name, ra, rb in pairs:
         a, b = 100 * ra["average"], 100 * rb["average"]
@@ -164,8 +185,12 @@ def phase_noise(out: Path) -> None:
         "mean of the two",
         "largest task difference",
     ]
-    (out / "noise.md").write_text(table(headers, rows, aligned=False) + "\n")
-    print((out / "noise.md").read_text())
+    path = out / ("noise.md" if lr_schedule == "preset" else f"noise_{lr_schedule}.md")
+    if rows:
+        path.write_text(
+            f"Learning-rate schedule: {lr_schedule}.\n\n" + table(headers, rows, aligned=False) + "\n"
+        )
+        print(path.read_text())
 
 
 def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
@@ -298,7 +323,7 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         {arm: (added[arm], avg[arm].mean(axis=0), avg[arm].std(axis=0)) for arm in ARMS},
         RESULTS / "data_efficiency.png",
     )
-    for path in [*sorted(out.glob("select*.md")), out / "noise.md"]:
+    for path in [*sorted(out.glob("select*.md")), *sorted(out.glob("noise*.md"))]:
         if path.exists():
             lines += ["", f"## {path.stem}", "", path.read_text()]
     lines += ["", "![success vs added demos](data_efficiency.png)"]
@@ -335,6 +360,8 @@ def main() -> None:
     parser.add_argument("--torch_threads", type=int, default=None)
     parser.add_argument("--candidates", default=CANDIDATES, help="select: comma-separated MetaWorld tasks")
     parser.add_argument("--name", default="select", help="select: the run's name under --out")
+    parser.add_argument("--lr_schedule", default="preset", help="noise: the schedule of the retrainings")
+    parser.add_argument("--train_seeds", type=int, nargs="+", default=[1000, 2000], help="noise: which ones")
     args = parser.parse_args()
     if args.torch_threads is not None:
         TORCH_THREADS.append(f"--train.torch_threads={args.torch_threads}")
@@ -342,7 +369,7 @@ def main() -> None:
     if args.phase == "select":
         phase_select(args.out, args.candidates, args.name)
     elif args.phase == "noise":
-        phase_noise(args.out)
+        phase_noise(args.out, args.arms, args.lr_schedule, args.train_seeds)
     elif args.phase == "arms":
         phase_arms(args.out, args.seeds, args.arms)
     else:

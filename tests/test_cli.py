@@ -3,6 +3,7 @@ as LeRobot's configs, from the same flags and recipe."""
 
 from pathlib import Path
 
+import pytest
 from lerobot.configs.policies import PreTrainedConfig
 
 from adademo_lerobot.cli import parse_config, parse_light
@@ -57,3 +58,22 @@ def test_train_own_flags_parse_first_and_lerobot_flags_in_full():
     full = parse_config(AdaDemoTrainConfig, argv)
     assert (full.sampler, full.sampler_alpha, full.steps, full.policy.type) == ("tempered", 0.5, 7, "act")
     assert full.batch_size == 64  # our default over lerobot-train's
+
+
+def test_cosine_lr_schedule_decays_to_one_percent_of_the_policys_rate(tmp_path):
+    argv = [
+        "--policy.type=act",
+        "--policy.optimizer_lr=0.0003",
+        "--dataset.repo_id=x/y",
+        f"--dataset.root={tmp_path}",
+    ]
+    preset = parse_config(AdaDemoTrainConfig, [*argv, f"--output_dir={tmp_path / 'a'}", "--steps=500"])
+    preset.validate()
+    assert preset.scheduler is None  # ACT's own schedule: a constant rate
+    cosine = parse_config(
+        AdaDemoTrainConfig, [*argv, f"--output_dir={tmp_path / 'b'}", "--steps=500", "--lr_schedule=cosine"]
+    )
+    cosine.validate()
+    assert cosine.scheduler.type == "cosine_decay_with_warmup"
+    assert cosine.scheduler.peak_lr == 3e-4 and cosine.scheduler.decay_lr == pytest.approx(3e-6)
+    assert (cosine.scheduler.num_warmup_steps, cosine.scheduler.num_decay_steps) == (10, 500)
