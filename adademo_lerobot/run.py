@@ -180,6 +180,8 @@ class RunState:
         self.path = run_dir / "run_state.json"
         if self.path.exists():
             state = json.loads(self.path.read_text())
+            for key, default in SETTINGS_ADDED_LATER.items():  # a run started before the setting existed
+                state["settings"].setdefault(key, default)
             diffs = sorted(
                 k
                 for k in set(settings) | set(state["settings"])
@@ -228,7 +230,10 @@ FIXED_SETTINGS = (
     "sampler",
     "policy_type",
     "start",
+    "lr_schedule",
 )
+# Settings that runs started by an earlier release do not record, with the value those runs used.
+SETTINGS_ADDED_LATER = {"lr_schedule": "preset"}
 
 
 def run_settings(cfg: RunConfig, suite: dict) -> dict:

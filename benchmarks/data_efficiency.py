@@ -128,7 +128,6 @@ def retrain_round3(out: Path, arm: str, train_seed: int, lr_schedule: str) -> Pa
     arm_dir = out / "seed0" / arm
     trained = json.loads((arm_dir / "run_state.json").read_text())["done"]["train-3"]["result"]
     steps = int(Path(trained).parent.name)  # .../checkpoints/<step>/pretrained_model
-    schedule = [] if lr_schedule == "preset" else [f"--train.lr_schedule={lr_schedule}"]
     name = f"{arm}_round3{'' if lr_schedule == 'preset' else '_' + lr_schedule}_trainseed{train_seed}"
     adademo_run(
         out / "noise" / name,
@@ -136,7 +135,7 @@ def retrain_round3(out: Path, arm: str, train_seed: int, lr_schedule: str) -> Pa
         "--rounds=0",
         f"--train.steps={steps}",
         *ALL_ARMS[arm],
-        *schedule,
+        f"--train.lr_schedule={lr_schedule}",
         "--seed=0",
         f"--train.seed={train_seed}",
     )
@@ -151,9 +150,9 @@ def phase_noise(out: Path, arms: list[str], lr_schedule: str, train_seeds: list[
     pairs = []
     if lr_schedule == "preset":
         base = out / "seed0" / "base"
-        adademo_run(base, "--rounds=0", *seed_flags(0))
+        adademo_run(base, "--rounds=0", *seed_flags(0), "--train.lr_schedule=preset")
         twin = out / "noise" / "base_trainseed2000"
-        adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000")
+        adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000", "--train.lr_schedule=preset")
         pairs.append(("round 0", eval_table(base, 0), eval_table(twin, 0)))
     for arm in arms:
         arm_dir = out / "seed0" / arm

@@ -167,3 +167,20 @@ def test_run_bad_input(tmp_path):
             match="in use by another running adademo command",
         )
     assert list(busy.iterdir()) == []
+
+
+def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_resumes(tmp_path):
+    from adademo_lerobot.errors import AdaDemoError
+    from adademo_lerobot.run import RunState
+
+    RunState(tmp_path, {"strategy": "adademo", "lr_schedule": "preset"})
+    with pytest.raises(AdaDemoError, match="lr_schedule"):
+        RunState(tmp_path, {"strategy": "adademo", "lr_schedule": "cosine"})
+    older = tmp_path / "older"  # started before lr_schedule was recorded: it used the policy's preset
+    older.mkdir()
+    (older / "run_state.json").write_text(
+        json.dumps({"settings": {"strategy": "adademo"}, "done": {"collect": {}}})
+    )
+    assert RunState(older, {"strategy": "adademo", "lr_schedule": "preset"}).done == {"collect": {}}
+    with pytest.raises(AdaDemoError, match="lr_schedule"):
+        RunState(older, {"strategy": "adademo", "lr_schedule": "cosine"})
