@@ -17,6 +17,7 @@ same for every round and every strategy and is never used for expansion.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import shutil
 import time
@@ -313,9 +314,8 @@ def run(cfg: RunConfig) -> Path:
                     begun["base_round"],
                 )
                 checkpoint = Path(begun["checkpoint"]) if begun["checkpoint"] else None
-                if (
-                    cfg.train.policy is None
-                ):  # no policy in the recipe: later rounds train the checkpoint's own
+                # No policy in the recipe: later rounds train the checkpoint's own.
+                if cfg.train.policy is None:
                     from lerobot.configs.policies import PreTrainedConfig
 
                     cfg.train.policy = PreTrainedConfig.from_pretrained(checkpoint)
@@ -450,12 +450,8 @@ def train_round(
         batch_size=cfg.train.batch_size,
         steps=steps,
         save_freq=min(cfg.train.save_freq, steps),
-        sampler=cfg.train.sampler,
-        min_task_weight=cfg.train.min_task_weight,
-        sampler_alpha=cfg.train.sampler_alpha,
-        torch_threads=cfg.train.torch_threads,
-        in_memory=cfg.train.in_memory,
-        lr_schedule=cfg.train.lr_schedule,
+        # the flags adademo-train shares with the recipe's train section (sampler, threads, schedule, ...)
+        **{f.name: getattr(cfg.train, f.name) for f in dataclasses.fields(TrainSamplingArgs)},
     )
     return str(train(train_cfg).resolve())
 

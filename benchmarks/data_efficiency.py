@@ -122,6 +122,11 @@ def phase_select(out: Path, candidates: str, name: str) -> None:
     print(table)
 
 
+def trained_schedule(run_dir: Path) -> str:
+    """The learning-rate schedule a run trained with (runs from before it was recorded used the preset)."""
+    return json.loads((run_dir / "run_state.json").read_text())["settings"].get("lr_schedule", "preset")
+
+
 def retrain_round3(out: Path, arm: str, train_seed: int, lr_schedule: str) -> Path:
     """Seed 0's round-3 data of `arm` trained again (a run continued from that dataset, with the steps and sampler
     of the arm's own round-3 training) with another training seed and/or learning-rate schedule."""
@@ -142,32 +147,39 @@ def retrain_round3(out: Path, arm: str, train_seed: int, lr_schedule: str) -> Pa
     return out / "noise" / name
 
 
-def phase_noise(out: Path, arms: list[str], lr_schedule: str, train_seeds: list[int]) -> None:
+def phase_noise(out: Path, arms: list[str], lr_schedule: str | None, train_seeds: list[int]) -> None:
     """The same round trained twice with different training seeds (1000, 2000), on unchanged data: how far the
-    average moves. `preset` (the recipe's schedule): round 0 of seed 0 (the base and a twin) and each finished
-    seed-0 arm's round 3 (its own training and a twin). Another `lr_schedule`: each arm's round-3 data trained with
-    it and both seeds. `train_seeds` limits which trainings this call runs (two calls can share the machine)."""
-    pairs = []
-    if lr_schedule == "preset":
+    average moves. Without `lr_schedule` (each run's own schedule): round 0 of seed 0 (the base and a twin) and
+    each finished seed-0 arm's round 3 (its own training, seed 1000, and a twin). With one: each arm's round-3 data
+    trained with it (the arm's own training counts as seed 1000 if it used that schedule). `train_seeds` limits
+    which trainings this call runs (two calls can share the machine)."""
+    pairs, schedules = [], set()
+    if lr_schedule is None:
         base = out / "seed0" / "base"
-        adademo_run(base, "--rounds=0", *seed_flags(0), "--train.lr_schedule=preset")
+        if not (base / "eval" / "round-000" / "eval_summary.json").exists():
+            adademo_run(base, "--rounds=0", *seed_flags(0))
+        schedules.add(trained_schedule(base))
         twin = out / "noise" / "base_trainseed2000"
-        adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000", "--train.lr_schedule=preset")
+        adademo_run(
+            twin,
+            "--rounds=0",
+            "--seed=0",
+            "--train.seed=2000",
+            f"--train.lr_schedule={trained_schedule(base)}",
+        )
         pairs.append(("round 0", eval_table(base, 0), eval_table(twin, 0)))
     for arm in arms:
         arm_dir = out / "seed0" / arm
         if not (arm_dir / "eval" / "round-003" / "eval_summary.json").exists():
             continue
-        own = (
-            {1000: arm_dir} if lr_schedule == "preset" else {}
-        )  # the arm's round 3 was trained with seed 1000
-        runs = {seed: retrain_round3(out, arm, seed, lr_schedule) for seed in train_seeds if seed not in own}
-        runs.update(own)
+        schedule = lr_schedule or trained_schedule(arm_dir)
+        schedules.add(schedule)
+        runs = {1000: (arm_dir, 3)} if schedule == trained_schedule(arm_dir) else {}  # trained with seed 1000
+        runs.update(
+            (seed, (retrain_round3(out, arm, seed, schedule), 0)) for seed in train_seeds if seed not in runs
+        )
         if set(runs) >= {1000, 2000}:
-            first, second = (
-                eval_table(runs[1000], 3 if runs[1000] == arm_dir else 0),
-                eval_table(runs[2000], 0),
-            )
+            first, second = (eval_table(*runs[1000]), eval_table(*runs[2000]))
             pairs.append((f"round 3 ({LABELS[arm].split(' (')[0]}'s data, seed 0)", first, second))
     rows = []
     for name, ra, rb in pairs:
@@ -184,10 +196,12 @@ def phase_noise(out: Path, arms: list[str], lr_schedule: str, train_seeds: list[
         "mean of the two",
         "largest task difference",
     ]
-    path = out / ("noise.md" if lr_schedule == "preset" else f"noise_{lr_schedule}.md")
+    path = out / ("noise.md" if lr_schedule is None else f"noise_{lr_schedule}.md")
     if rows:
         path.write_text(
-            f"Learning-rate schedule: {lr_schedule}.\n\n" + table(headers, rows, aligned=False) + "\n"
+            f"Learning-rate schedule: {', '.join(sorted(schedules))}.\n\n"
+            + table(headers, rows, aligned=False)
+            + "\n"
         )
         print(path.read_text())
 
@@ -359,7 +373,9 @@ def main() -> None:
     parser.add_argument("--torch_threads", type=int, default=None)
     parser.add_argument("--candidates", default=CANDIDATES, help="select: comma-separated MetaWorld tasks")
     parser.add_argument("--name", default="select", help="select: the run's name under --out")
-    parser.add_argument("--lr_schedule", default="preset", help="noise: the schedule of the retrainings")
+    parser.add_argument(
+        "--lr_schedule", default=None, help="noise: retrain with it (default: each run's own)"
+    )
     parser.add_argument("--train_seeds", type=int, nargs="+", default=[1000, 2000], help="noise: which ones")
     args = parser.parse_args()
     if args.torch_threads is not None:
