@@ -25,6 +25,7 @@ Writes benchmarks/results/data_efficiency.md and data_efficiency.png.
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import os
 import shutil
@@ -77,6 +78,17 @@ def adademo_run(run_dir: Path, *flags: str) -> None:
 
 def seed_flags(seed: int) -> list[str]:
     return [f"--seed={seed}", f"--train.seed={1000 + seed}"]
+
+
+def ensure_base(out: Path, seed: int) -> Path:
+    """The seed's shared round 0, built by whichever driver gets there first (the other waits on the lock)."""
+    base = out / f"seed{seed}" / "base"
+    base.parent.mkdir(parents=True, exist_ok=True)
+    with open(base.parent / "base.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (base / "eval" / "round-000" / "eval_summary.json").exists():
+            adademo_run(base, "--rounds=0", *seed_flags(seed))
+    return base
 
 
 def branch_from_base(base: Path, arm_dir: Path, flags: list[str]) -> None:
@@ -155,18 +167,13 @@ def phase_noise(out: Path, arms: list[str], lr_schedule: str | None, train_seeds
     which trainings this call runs (two calls can share the machine)."""
     pairs, schedules = [], set()
     if lr_schedule is None:
-        base = out / "seed0" / "base"
-        if not (base / "eval" / "round-000" / "eval_summary.json").exists():
-            adademo_run(base, "--rounds=0", *seed_flags(0))
-        schedules.add(trained_schedule(base))
+        # The twin first: it needs no base, so a second driver can train it while the first builds the base.
         twin = out / "noise" / "base_trainseed2000"
-        adademo_run(
-            twin,
-            "--rounds=0",
-            "--seed=0",
-            "--train.seed=2000",
-            f"--train.lr_schedule={trained_schedule(base)}",
-        )
+        adademo_run(twin, "--rounds=0", "--seed=0", "--train.seed=2000")
+        base = ensure_base(out, 0)
+        if trained_schedule(twin) != trained_schedule(base):
+            sys.exit(f"{twin} and {base} trained with different learning-rate schedules: use a fresh --out")
+        schedules.add(trained_schedule(base))
         pairs.append(("round 0", eval_table(base, 0), eval_table(twin, 0)))
     for arm in arms:
         arm_dir = out / "seed0" / arm
@@ -208,9 +215,7 @@ def phase_noise(out: Path, arms: list[str], lr_schedule: str | None, train_seeds
 
 def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
     for seed in seeds:
-        base = out / f"seed{seed}" / "base"
-        if not (base / "eval" / "round-000" / "eval_summary.json").exists():  # another driver may share it
-            adademo_run(base, "--rounds=0", *seed_flags(seed))
+        base = ensure_base(out, seed)
         for arm in arms:
             arm_dir = out / f"seed{seed}" / arm
             flags = [*ALL_ARMS[arm], *seed_flags(seed)]
