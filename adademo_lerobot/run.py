@@ -80,6 +80,13 @@ class RunTrainArgs(TrainSamplingArgs):
     save_freq: int = 1000
     seed: int = 1000
 
+    def validate(self) -> None:
+        super().validate()
+        if self.mode not in ("scratch", "finetune"):
+            raise AdaDemoError(f"--train.mode must be scratch or finetune, got {self.mode!r}")
+        if self.steps_schedule not in STEPS_SCHEDULES:
+            raise AdaDemoError(f"--train.steps_schedule must be one of {', '.join(STEPS_SCHEDULES)}")
+
 
 @dataclass
 class RunEvalArgs:
@@ -160,10 +167,6 @@ class RunConfig:
                 "the recipe needs train.policy (e.g. --train.policy.type=act), or start from a checkpoint with "
                 "--policy.path=CKPT"
             )
-        if self.train.mode not in ("scratch", "finetune"):
-            raise AdaDemoError(f"--train.mode must be scratch or finetune, got {self.train.mode!r}")
-        if self.train.steps_schedule not in STEPS_SCHEDULES:
-            raise AdaDemoError(f"--train.steps_schedule must be one of {', '.join(STEPS_SCHEDULES)}")
         if self.push_to_hub and not self.hub_repo_id:
             raise AdaDemoError("--push_to_hub=true needs --hub_repo_id=USER/NAME")
         check_executor_args(self.executor, self.ray)

@@ -181,6 +181,7 @@ print("RESULT", code, "torch" in sys.modules, "lerobot" in sys.modules)
         ("train", ["--policy.type=act", "--sampler_alpha=-1"], 2),
         ("train", ["--policy.type=act", "--lr_schedule=linear"], 2),
         ("run", ["--run_dir=/tmp/r", "--train.policy.type=act", "--train.lr_schedule=linear"], 2),
+        ("run", ["--run_dir=/tmp/r", "--train.policy.type=act", "--train.mode=resume"], 2),
         ("record", ["--help"], 0),
         ("record", ["--robot.type=so101_follower", "--robot.port=/dev/x"], 2),  # no teleoperator
         ("record", ["--robot.type=so101_follower", "--teleop.type=so101_leader", "--policy.path=p"], 2),
