@@ -16,6 +16,7 @@ regime are the ones this benchmark chose (select, noise); the arms differ only i
     adademo            --strategy=adademo   (the paper's: E picked by --budget, at most B_i), trajectory sampler
     adademo_tempered   --strategy=adademo   + --train.sampler=tempered --train.sampler_alpha=0.5
     budgeted_tempered  --strategy=budgeted  (exactly B_i) + tempered sampler
+    budgeted           --strategy=budgeted  + trajectory sampler (which sampler suits the budget strategy)
 
 Per seed all arms branch from one shared round 0 (dataset, policy, evaluation), train each round from scratch with
 the same training seed, and are evaluated on the same fixed initial states (50 per task): comparisons are paired.
@@ -50,6 +51,7 @@ ALL_ARMS = {
     "adademo": ["--strategy=adademo", "--train.sampler=trajectory"],
     "adademo_tempered": ["--strategy=adademo", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
     "budgeted_tempered": ["--strategy=budgeted", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
+    "budgeted": ["--strategy=budgeted", "--train.sampler=trajectory"],
 }
 ARMS = list(ALL_ARMS)  # the arms a report covers (phase_report narrows it to the finished ones)
 LABELS = {
@@ -57,6 +59,7 @@ LABELS = {
     "adademo": "AdaDemo (paper: E from the budget, trajectory sampler)",
     "adademo_tempered": "AdaDemo + tempered sampler (alpha 0.5)",
     "budgeted_tempered": "Budgeted + tempered sampler (alpha 0.5)",
+    "budgeted": "Budgeted + trajectory sampler",
 }
 TORCH_THREADS: list[str] = []
 
