@@ -252,24 +252,29 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         for s in seeds
         if (out / f"seed{s}" / arm / "eval" / "round-003" / "eval_summary.json").exists()
     }
-    # The arms through round 3 in every seed that has Uniform through round 3 (a partial run reports those).
-    complete = [s for s in seeds if ("uniform", s) in runs]
-    ARMS[:] = [a for a in ALL_ARMS if complete and all((a, s) in runs for s in complete)]
+    # The tables cover the seeds where every reported arm reached round 3; the headlines compare each arm with
+    # Uniform over every seed where both did (a benchmark in progress reports those), always paired.
+    arm_seeds = {arm: [s for s in seeds if (arm, s) in runs and ("uniform", s) in runs] for arm in ALL_ARMS}
+    ARMS[:] = [arm for arm in ALL_ARMS if arm_seeds[arm]]
     if len(ARMS) < 2:
         sys.exit("no seed has Uniform and another arm through round 3 yet")
-    tasks = runs[("uniform", complete[0])].tasks
-    sr = {
-        arm: np.stack([runs[(arm, s)].success.loc[tasks].to_numpy() for s in complete]) for arm in ARMS
-    }  # s,t,r
-    demos = {arm: np.stack([runs[(arm, s)].demos.loc[tasks].to_numpy() for s in complete]) for arm in ARMS}
-    added = {
-        arm: (demos[arm] - demos[arm][:, :, :1]).mean(axis=1).mean(axis=0) for arm in ARMS
-    }  # per task, by round
+    common = [s for s in seeds if all((arm, s) in runs for arm in ARMS)]
+    tasks = runs[("uniform", arm_seeds["uniform"][0])].tasks
+
+    def stacked(arm: str, field: str, over: list[int]) -> np.ndarray:  # seed x task x round
+        return np.stack([getattr(runs[(arm, s)], field).loc[tasks].to_numpy() for s in over])
+
+    def added_per_task(demos: np.ndarray) -> np.ndarray:  # by round, mean over tasks and seeds
+        return (demos - demos[:, :, :1]).mean(axis=1).mean(axis=0)
+
+    sr = {arm: stacked(arm, "success", common) for arm in ARMS}
+    demos = {arm: stacked(arm, "demos", common) for arm in ARMS}
+    added = {arm: added_per_task(demos[arm]) for arm in ARMS}
     avg = {arm: sr[arm].mean(axis=1) for arm in ARMS}  # seed x round
     episodes = {}  # demos + evaluation episodes (all run, speculative ones included), per task, cumulative
     for arm in ARMS:
         totals = []
-        for s in complete:
+        for s in common:
             ledger = pd.DataFrame(read_ledger(out / f"seed{s}" / arm / "dataset"))
             per_round = [
                 (
@@ -287,7 +292,7 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         "",
         f"Command: `python benchmarks/data_efficiency.py arms --seeds {' '.join(map(str, seeds))}` then `report`; "
         f"{machine_line()}.",
-        f"Seeds complete: {complete}; arms: {', '.join(ARMS)}. Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}); arms differ only "
+        f"Tables: seeds {', '.join(map(str, common))}, where every arm below reached round 3. Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}); arms differ only "
         "in strategy and sampler (see the script's docstring). Success on the same 50 fixed initial states per task "
         "every round; mean ± std over seeds; in brackets the demos per task after the round.",
         "",
@@ -314,17 +319,29 @@ def phase_report(out: Path, seeds: list[int]) -> None:
             if a != "uniform"
         ]
         lines.append(f"| {task} | " + " | ".join(cells) + " |")
-    uniform_final = avg["uniform"][:, 3].mean()
-    lines += ["", "## Headlines", ""]
-    best = max((a for a in ARMS if a != "uniform"), key=lambda a: avg[a][:, 3].mean())
+    lines += [
+        "",
+        "## Headlines",
+        "",
+        "Each arm against Uniform over every seed where both reached round 3: "
+        + "; ".join(f"{arm} seeds {', '.join(map(str, arm_seeds[arm]))}" for arm in ARMS if arm != "uniform")
+        + ".",
+        "",
+    ]
+    own_avg = {arm: stacked(arm, "success", arm_seeds[arm]).mean(axis=1) for arm in ARMS}
+    own_added = {arm: added_per_task(stacked(arm, "demos", arm_seeds[arm])) for arm in ARMS}
+    uniform_avg = {arm: stacked("uniform", "success", arm_seeds[arm]).mean(axis=1) for arm in ARMS}
+    uniform_added = {arm: added_per_task(stacked("uniform", "demos", arm_seeds[arm])) for arm in ARMS}
+    paired = {arm: 100 * (own_avg[arm][:, 3] - uniform_avg[arm][:, 3]) for arm in ARMS}
+    best = max((a for a in ARMS if a != "uniform"), key=lambda a: paired[a].mean())
     for arm in [a for a in ARMS if a != "uniform"]:
-        paired = 100 * (avg[arm][:, 3] - avg["uniform"][:, 3])
-        reached = demos_to_reach(added[arm], avg[arm].mean(axis=0), uniform_final)
-        ratio = f"{reached / added['uniform'][3]:.2f}x" if reached is not None else "not reached"
+        uniform_final = uniform_avg[arm][:, 3].mean()
+        reached = demos_to_reach(own_added[arm], own_avg[arm].mean(axis=0), uniform_final)
+        ratio = f"{reached / uniform_added[arm][3]:.2f}x" if reached is not None else "not reached"
         lines.append(
-            f"- {LABELS[arm]}: round 3 {100 * avg[arm][:, 3].mean():.1f} % vs Uniform "
-            f"{100 * uniform_final:.1f} %: **{paired.mean():+.1f} points** (paired per seed: "
-            f"{', '.join(f'{p:+.1f}' for p in paired)}), {added[arm][3]:.1f} vs {added['uniform'][3]:.1f} "
+            f"- {LABELS[arm]}: round 3 {100 * own_avg[arm][:, 3].mean():.1f} % vs Uniform "
+            f"{100 * uniform_final:.1f} %: **{paired[arm].mean():+.1f} points** (paired per seed: "
+            f"{', '.join(f'{p:+.1f}' for p in paired[arm])}), {own_added[arm][3]:.1f} vs {uniform_added[arm][3]:.1f} "
             f"added demos per task; Uniform's final average reached with **{ratio}** of Uniform's added "
             "demos."
         )
