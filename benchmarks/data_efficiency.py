@@ -259,6 +259,10 @@ def phase_report(out: Path, seeds: list[int]) -> None:
     if len(ARMS) < 2:
         sys.exit("no seed has Uniform and another arm through round 3 yet")
     common = [s for s in seeds if all((arm, s) in runs for arm in ARMS)]
+    if not common:
+        sys.exit(
+            f"no seed has every arm ({', '.join(ARMS)}) through round 3 yet: finish one, or pass fewer --seeds"
+        )
     tasks = runs[("uniform", arm_seeds["uniform"][0])].tasks
 
     def stacked(arm: str, field: str, over: list[int]) -> np.ndarray:  # seed x task x round
