@@ -323,22 +323,23 @@ def phase_report(out: Path, seeds: list[int]) -> None:
             if a != "uniform"
         ]
         lines.append(f"| {task} | " + " | ".join(cells) + " |")
+    compared = [arm for arm in ARMS if arm != "uniform"]
     lines += [
         "",
         "## Headlines",
         "",
         "Each arm against Uniform over every seed where both reached round 3: "
-        + "; ".join(f"{arm} seeds {', '.join(map(str, arm_seeds[arm]))}" for arm in ARMS if arm != "uniform")
+        + "; ".join(f"{arm} seeds {', '.join(map(str, arm_seeds[arm]))}" for arm in compared)
         + ".",
         "",
     ]
-    own_avg = {arm: stacked(arm, "success", arm_seeds[arm]).mean(axis=1) for arm in ARMS}
-    own_added = {arm: added_per_task(stacked(arm, "demos", arm_seeds[arm])) for arm in ARMS}
-    uniform_avg = {arm: stacked("uniform", "success", arm_seeds[arm]).mean(axis=1) for arm in ARMS}
-    uniform_added = {arm: added_per_task(stacked("uniform", "demos", arm_seeds[arm])) for arm in ARMS}
-    paired = {arm: 100 * (own_avg[arm][:, 3] - uniform_avg[arm][:, 3]) for arm in ARMS}
-    best = max((a for a in ARMS if a != "uniform"), key=lambda a: paired[a].mean())
-    for arm in [a for a in ARMS if a != "uniform"]:
+    own_avg = {arm: stacked(arm, "success", arm_seeds[arm]).mean(axis=1) for arm in compared}
+    own_added = {arm: added_per_task(stacked(arm, "demos", arm_seeds[arm])) for arm in compared}
+    uniform_avg = {arm: stacked("uniform", "success", arm_seeds[arm]).mean(axis=1) for arm in compared}
+    uniform_added = {arm: added_per_task(stacked("uniform", "demos", arm_seeds[arm])) for arm in compared}
+    paired = {arm: 100 * (own_avg[arm][:, 3] - uniform_avg[arm][:, 3]) for arm in compared}
+    best = max(compared, key=lambda a: paired[a].mean())
+    for arm in compared:
         uniform_final = uniform_avg[arm][:, 3].mean()
         reached = demos_to_reach(own_added[arm], own_avg[arm].mean(axis=0), uniform_final)
         ratio = f"{reached / uniform_added[arm][3]:.2f}x" if reached is not None else "not reached"
