@@ -14,6 +14,7 @@ then is LeRobot imported and the config parsed again with LeRobot's types in the
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import json
 import logging
@@ -23,6 +24,7 @@ import typing
 from collections import defaultdict
 from collections.abc import Callable
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 from adademo_lerobot.configs import LEROBOT_CHOICE
@@ -47,8 +49,9 @@ def lerobot_choice_type(kind: str) -> type:
     return {"robot": RobotConfig, "teleop": TeleoperatorConfig}[kind]
 
 
-def choice_fields(config_cls: type, prefix: str = "") -> dict[str, str]:
-    """Dotted path -> kind of every `lerobot_choice` field of a (nested) dataclass config."""
+@functools.cache  # a command asks up to three times; the walk resolves every type hint of the config
+def choice_fields(config_cls: type, prefix: str = "") -> MappingProxyType[str, str]:
+    """Dotted path -> kind of every `lerobot_choice` field of a (nested) dataclass config (read-only: cached)."""
     found = {}
     hints = typing.get_type_hints(config_cls)
     for f in dataclasses.fields(config_cls):
@@ -56,7 +59,7 @@ def choice_fields(config_cls: type, prefix: str = "") -> dict[str, str]:
             found[prefix + f.name] = f.metadata[LEROBOT_CHOICE]
         elif dataclasses.is_dataclass(hints[f.name]):
             found.update(choice_fields(hints[f.name], f"{prefix}{f.name}."))
-    return found
+    return MappingProxyType(found)
 
 
 def with_lerobot_types(config_cls: type, types: dict[str, type]) -> type:

@@ -5,11 +5,15 @@ budgeted strategy, at equal demonstrations per round, with the noise of the meas
     python benchmarks/data_efficiency.py noise               # noise floor: one round trained twice, two seeds
     python benchmarks/data_efficiency.py noise --arms budgeted_tempered --lr_schedule cosine   # with another schedule
     python benchmarks/data_efficiency.py arms --seeds 0 1 2 [--arms uniform adademo ...] [--torch_threads 1]
+    python benchmarks/data_efficiency.py export              # summaries of arms an older driver finished
     python benchmarks/data_efficiency.py report --seeds 0 1 2
 
 Every run is an `adademo-run` folder under --out (default ~/adademo-bench), so every phase resumes after an
 interruption (rerun the same command) and two drivers can share a machine on disjoint arms (give each
-`--torch_threads 1`). The recipe is `recipes/budgeted.yaml`: its tasks, budgets, CAPs, model and training
+`--torch_threads 1`). A finished arm is summarised into `benchmarks/results/data_efficiency/seed<S>-<arm>.json`
+(success and demos per task and round, its ledger, its settings, the machine), and `select` and `noise` write
+their tables there too: commit them. `report` reads only that folder, so seeds run in different sessions or on
+different machines combine, and anyone can regenerate the results from the committed figures. The recipe is `recipes/budgeted.yaml`: its tasks, budgets, CAPs, model and training
 regime are the ones this benchmark chose (select, noise); the arms differ only in strategy and sampler:
 
     uniform            --strategy=uniform   (the budget split evenly: exactly B_i demos per round)
@@ -20,7 +24,7 @@ regime are the ones this benchmark chose (select, noise); the arms differ only i
 
 Per seed all arms branch from one shared round 0 (dataset, policy, evaluation), train each round from scratch with
 the same training seed, and are evaluated on the same fixed initial states (50 per task): comparisons are paired.
-Writes benchmarks/results/data_efficiency.md and data_efficiency.png.
+`report` writes benchmarks/results/data_efficiency.md and data_efficiency.png.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from _common import BIN, RESULTS, ROOT, machine_line
 from adademo_lerobot.tables import table
 
 RECIPE = ROOT / "recipes" / "budgeted.yaml"
+SUMMARIES = RESULTS / "data_efficiency"  # committed: what `report` is built from
 CANDIDATES = (
     "reach-v3,push-v3,pick-place-v3,door-open-v3,drawer-open-v3,drawer-close-v3,button-press-topdown-v3,"
     "peg-insert-side-v3,window-open-v3,window-close-v3,button-press-v3,coffee-button-v3,plate-slide-v3,"
@@ -81,6 +86,10 @@ def adademo_run(run_dir: Path, *flags: str) -> None:
 
 def seed_flags(seed: int) -> list[str]:
     return [f"--seed={seed}", f"--train.seed={1000 + seed}"]
+
+
+def finished(run_dir: Path) -> bool:
+    return (run_dir / "eval" / "round-003" / "eval_summary.json").exists()
 
 
 def ensure_base(out: Path, seed: int) -> Path:
@@ -133,8 +142,7 @@ def phase_select(out: Path, candidates: str, name: str) -> None:
     table = f"Candidates ({name}, {steps} steps):\n\n| task | round-0 SR % |\n| --- | --- |\n" + "\n".join(
         lines
     )
-    (out / f"{name}.md").write_text(table + "\n")
-    print(table)
+    write_summary_table(name, table)
 
 
 def trained_schedule(run_dir: Path) -> str:
@@ -180,7 +188,7 @@ def phase_noise(out: Path, arms: list[str], lr_schedule: str | None, train_seeds
         pairs.append(("round 0", eval_table(base, 0), eval_table(twin, 0)))
     for arm in arms:
         arm_dir = out / "seed0" / arm
-        if not (arm_dir / "eval" / "round-003" / "eval_summary.json").exists():
+        if not finished(arm_dir):
             continue
         schedule = lr_schedule or trained_schedule(arm_dir)
         schedules.add(schedule)
@@ -206,14 +214,57 @@ def phase_noise(out: Path, arms: list[str], lr_schedule: str | None, train_seeds
         "mean of the two",
         "largest task difference",
     ]
-    path = out / ("noise.md" if lr_schedule is None else f"noise_{lr_schedule}.md")
     if rows:
-        path.write_text(
+        write_summary_table(
+            "noise" if lr_schedule is None else f"noise_{lr_schedule}",
             f"Learning-rate schedule: {', '.join(sorted(schedules))}.\n\n"
-            + table(headers, rows, aligned=False)
-            + "\n"
+            + table(headers, rows, aligned=False),
         )
-        print(path.read_text())
+
+
+def write_summary_table(name: str, text: str) -> None:
+    """A `select` or `noise` table, committed beside the arms' summaries; `report` appends it."""
+    from adademo_lerobot.files import atomic_write_text
+
+    atomic_write_text(SUMMARIES / f"{name}.md", text + "\n")
+    print(text)
+
+
+def export_run(out: Path, seed: int, arm: str) -> Path:
+    """A finished arm's figures, small enough to commit: success and demos per task and round, the ledger (without
+    machine paths and expert-failed states), the run's settings and the machine."""
+    from adademo_lerobot.files import atomic_write_text
+    from adademo_lerobot.ledger import read_ledger
+    from adademo_lerobot.report import load_run
+
+    run_dir = out / f"seed{seed}" / arm
+    run = load_run(run_dir)
+    settings = json.loads((run_dir / "run_state.json").read_text())["settings"]
+    summary = {
+        "arm": arm,
+        "seed": seed,
+        "flags": [*ALL_ARMS[arm], *seed_flags(seed)],
+        "machine": machine_line(),
+        "settings": {k: v for k, v in settings.items() if not isinstance(v, str) or not v.startswith("/")},
+        "tasks": run.tasks,
+        "success": {t: run.success.loc[t].tolist() for t in run.tasks},
+        "demos": {t: run.demos.loc[t].tolist() for t in run.tasks},
+        "ledger": [
+            {k: v for k, v in row.items() if k not in ("policy_path", "expert_failed_states")}
+            for row in read_ledger(run_dir / "dataset")
+        ],
+    }
+    path = SUMMARIES / f"seed{seed}-{arm}.json"
+    atomic_write_text(path, json.dumps(summary, indent=1) + "\n")
+    print(f"wrote {path.relative_to(ROOT)}", flush=True)
+    return path
+
+
+def phase_export(out: Path) -> None:
+    """Summaries of every finished arm under `out` (for arms a driver from before `export_run` finished)."""
+    for arm_dir in sorted(out.glob("seed*/*")):
+        if arm_dir.name in ALL_ARMS and finished(arm_dir):
+            export_run(out, int(arm_dir.parent.name.removeprefix("seed")), arm_dir.name)
 
 
 def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
@@ -224,6 +275,7 @@ def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
             flags = [*ALL_ARMS[arm], *seed_flags(seed)]
             branch_from_base(base, arm_dir, flags)
             adademo_run(arm_dir, *flags)
+            export_run(out, seed, arm)
 
 
 def demos_to_reach(x: np.ndarray, y: np.ndarray, target: float) -> float | None:
@@ -242,31 +294,36 @@ def arm_table(column: str, cell) -> str:
     return table(headers, [[LABELS[arm], *(cell(arm, r) for r in range(4))] for arm in ARMS], aligned=False)
 
 
-def phase_report(out: Path, seeds: list[int]) -> None:
-    from adademo_lerobot.ledger import read_ledger
-    from adademo_lerobot.report import load_run
+def load_summaries(seeds: list[int]) -> dict[tuple[str, int], dict]:
+    runs = {}
+    for arm in ALL_ARMS:
+        for s in seeds:
+            path = SUMMARIES / f"seed{s}-{arm}.json"
+            if path.exists():
+                runs[(arm, s)] = json.loads(path.read_text())
+    task_sets = {tuple(run["tasks"]) for run in runs.values()}
+    if len(task_sets) > 1:
+        sys.exit(f"the summaries in {SUMMARIES} are of different task sets: {sorted(task_sets)}")
+    return runs
 
-    runs = {
-        (arm, s): load_run(out / f"seed{s}" / arm)
-        for arm in ALL_ARMS
-        for s in seeds
-        if (out / f"seed{s}" / arm / "eval" / "round-003" / "eval_summary.json").exists()
-    }
+
+def phase_report(seeds: list[int]) -> None:
+    runs = load_summaries(seeds)
     # The tables cover the seeds where every reported arm reached round 3; the headlines compare each arm with
     # Uniform over every seed where both did (a benchmark in progress reports those), always paired.
     arm_seeds = {arm: [s for s in seeds if (arm, s) in runs and ("uniform", s) in runs] for arm in ALL_ARMS}
     ARMS[:] = [arm for arm in ALL_ARMS if arm_seeds[arm]]
     if len(ARMS) < 2:
-        sys.exit("no seed has Uniform and another arm through round 3 yet")
+        sys.exit(f"no seed has Uniform and another arm through round 3 yet (summaries: {SUMMARIES})")
     common = [s for s in seeds if all((arm, s) in runs for arm in ARMS)]
     if not common:
         sys.exit(
             f"no seed has every arm ({', '.join(ARMS)}) through round 3 yet: finish one, or pass fewer --seeds"
         )
-    tasks = runs[("uniform", arm_seeds["uniform"][0])].tasks
+    tasks = runs[("uniform", arm_seeds["uniform"][0])]["tasks"]
 
     def stacked(arm: str, field: str, over: list[int]) -> np.ndarray:  # seed x task x round
-        return np.stack([getattr(runs[(arm, s)], field).loc[tasks].to_numpy() for s in over])
+        return np.array([[runs[(arm, s)][field][t] for t in tasks] for s in over], dtype=float)
 
     def added_per_task(demos: np.ndarray) -> np.ndarray:  # by round, mean over tasks and seeds
         return (demos - demos[:, :, :1]).mean(axis=1).mean(axis=0)
@@ -279,7 +336,7 @@ def phase_report(out: Path, seeds: list[int]) -> None:
     for arm in ARMS:
         totals = []
         for s in common:
-            ledger = pd.DataFrame(read_ledger(out / f"seed{s}" / arm / "dataset"))
+            ledger = pd.DataFrame(runs[(arm, s)]["ledger"])
             per_round = [
                 (
                     ledger[ledger["round"] == r].demos_added.sum()
@@ -290,12 +347,14 @@ def phase_report(out: Path, seeds: list[int]) -> None:
             ]
             totals.append(np.cumsum([0, *per_round]))
         episodes[arm] = np.mean(totals, axis=0)
+    machines = sorted({runs[key]["machine"].split("; machine: ")[-1] for key in runs})
 
     lines = [
         "# Data efficiency on MetaWorld: Uniform, AdaDemo, AdaDemo + tempered sampler, budgeted",
         "",
         f"Command: `python benchmarks/data_efficiency.py arms --seeds {' '.join(map(str, seeds))}` then `report`; "
-        f"{machine_line()}.",
+        f"report {machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary "
+        f"under `results/data_efficiency/`).",
         f"Tables: seeds {', '.join(map(str, common))}, where every arm below reached round 3. Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}); arms differ only "
         "in strategy and sampler (see the script's docstring). Success on the same 50 fixed initial states per task "
         "every round; mean ± std over seeds; in brackets the demos per task after the round.",
@@ -366,9 +425,8 @@ def phase_report(out: Path, seeds: list[int]) -> None:
         {arm: (added[arm], avg[arm].mean(axis=0), avg[arm].std(axis=0)) for arm in ARMS},
         RESULTS / "data_efficiency.png",
     )
-    for path in [*sorted(out.glob("select*.md")), *sorted(out.glob("noise*.md"))]:
-        if path.exists():
-            lines += ["", f"## {path.stem}", "", path.read_text()]
+    for path in [*sorted(SUMMARIES.glob("select*.md")), *sorted(SUMMARIES.glob("noise*.md"))]:
+        lines += ["", f"## {path.stem}", "", path.read_text()]
     lines += ["", "![success vs added demos](data_efficiency.png)"]
     results = RESULTS / "data_efficiency.md"
     # The analysis is written by hand under "## Reading" at the end; a new report keeps it (to be revised).
@@ -396,7 +454,7 @@ def plot(curves: dict, path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("phase", choices=["select", "noise", "arms", "report"])
+    parser.add_argument("phase", choices=["select", "noise", "arms", "export", "report"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--arms", nargs="+", choices=list(ALL_ARMS), default=list(ALL_ARMS))
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
@@ -417,8 +475,10 @@ def main() -> None:
         phase_noise(args.out, args.arms, args.lr_schedule, args.train_seeds)
     elif args.phase == "arms":
         phase_arms(args.out, args.seeds, args.arms)
+    elif args.phase == "export":
+        phase_export(args.out)
     else:
-        phase_report(args.out, args.seeds)
+        phase_report(args.seeds)
 
 
 if __name__ == "__main__":
