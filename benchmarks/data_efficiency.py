@@ -6,15 +6,17 @@ budgeted strategy, at equal demonstrations per round, with the noise of the meas
     python benchmarks/data_efficiency.py noise --arms budgeted_tempered --lr_schedule cosine   # with another schedule
     python benchmarks/data_efficiency.py arms --seeds 0 1 2 [--arms uniform adademo ...] [--torch_threads 1]
     python benchmarks/data_efficiency.py export              # summaries of arms an older driver finished
-    python benchmarks/data_efficiency.py report --seeds 0 1 2
+    python benchmarks/data_efficiency.py report --seeds 0 1 2 [--arms ...]   # the arms to report (and Uniform)
 
 Every run is an `adademo-run` folder under --out (default ~/adademo-bench), so every phase resumes after an
 interruption (rerun the same command) and two drivers can share a machine on disjoint arms (give each
 `--torch_threads 1`). A finished arm is summarised into `benchmarks/results/data_efficiency/seed<S>-<arm>.json`
 (success and demos per task and round, its ledger, its settings, the machine), and `select` and `noise` write
 their tables there too: commit them. `report` reads only that folder, so seeds run in different sessions or on
-different machines combine, and anyone can regenerate the results from the committed figures. The recipe is `recipes/budgeted.yaml`: its tasks, budgets, CAPs, model and training
-regime are the ones this benchmark chose (select, noise); the arms differ only in strategy and sampler:
+different machines combine, and anyone can regenerate the results from the committed figures.
+
+The recipe is `recipes/budgeted.yaml`: its tasks, budgets, CAPs, model and training regime are the ones this
+benchmark chose (select, noise); the arms differ only in strategy and sampler:
 
     uniform            --strategy=uniform   (the budget split evenly: exactly B_i demos per round)
     adademo            --strategy=adademo   (the paper's: E picked by --budget, at most B_i), trajectory sampler
@@ -307,12 +309,12 @@ def load_summaries(seeds: list[int]) -> dict[tuple[str, int], dict]:
     return runs
 
 
-def phase_report(seeds: list[int]) -> None:
+def phase_report(seeds: list[int], arms: list[str]) -> None:
     runs = load_summaries(seeds)
     # The tables cover the seeds where every reported arm reached round 3; the headlines compare each arm with
     # Uniform over every seed where both did (a benchmark in progress reports those), always paired.
     arm_seeds = {arm: [s for s in seeds if (arm, s) in runs and ("uniform", s) in runs] for arm in ALL_ARMS}
-    ARMS[:] = [arm for arm in ALL_ARMS if arm_seeds[arm]]
+    ARMS[:] = [arm for arm in ALL_ARMS if arm in {"uniform", *arms} and arm_seeds[arm]]
     if len(ARMS) < 2:
         sys.exit(f"no seed has Uniform and another arm through round 3 yet (summaries: {SUMMARIES})")
     common = [s for s in seeds if all((arm, s) in runs for arm in ARMS)]
@@ -397,17 +399,21 @@ def phase_report(seeds: list[int]) -> None:
     uniform_avg = {arm: stacked("uniform", "success", arm_seeds[arm]).mean(axis=1) for arm in compared}
     uniform_added = {arm: added_per_task(stacked("uniform", "demos", arm_seeds[arm])) for arm in compared}
     paired = {arm: 100 * (own_avg[arm][:, 3] - uniform_avg[arm][:, 3]) for arm in compared}
-    best = max(compared, key=lambda a: paired[a].mean())
+    most_seeds = max(len(arm_seeds[a]) for a in compared)  # an arm with fewer seeds is not yet a candidate
+    best = max((a for a in compared if len(arm_seeds[a]) == most_seeds), key=lambda a: paired[a].mean())
     for arm in compared:
         uniform_final = uniform_avg[arm][:, 3].mean()
         reached = demos_to_reach(own_added[arm], own_avg[arm].mean(axis=0), uniform_final)
-        ratio = f"{reached / uniform_added[arm][3]:.2f}x" if reached is not None else "not reached"
+        ratio = (
+            f"reached with **{reached / uniform_added[arm][3]:.2f}x** of Uniform's added demos"
+            if reached is not None
+            else "**not reached** in 3 rounds"
+        )
         lines.append(
             f"- {LABELS[arm]}: round 3 {100 * own_avg[arm][:, 3].mean():.1f} % vs Uniform "
             f"{100 * uniform_final:.1f} %: **{paired[arm].mean():+.1f} points** (paired per seed: "
             f"{', '.join(f'{p:+.1f}' for p in paired[arm])}), {own_added[arm][3]:.1f} vs {uniform_added[arm][3]:.1f} "
-            f"added demos per task; Uniform's final average reached with **{ratio}** of Uniform's added "
-            "demos."
+            f"added demos per task; Uniform's final average {ratio}."
         )
     lines += [
         "",
@@ -478,7 +484,7 @@ def main() -> None:
     elif args.phase == "export":
         phase_export(args.out)
     else:
-        phase_report(args.seeds)
+        phase_report(args.seeds, args.arms)
 
 
 if __name__ == "__main__":
