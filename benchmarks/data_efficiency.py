@@ -354,7 +354,8 @@ def phase_report(seeds: list[int], arms: list[str]) -> None:
     lines = [
         "# Data efficiency on MetaWorld: Uniform, AdaDemo, AdaDemo + tempered sampler, budgeted",
         "",
-        f"Command: `python benchmarks/data_efficiency.py arms --seeds {' '.join(map(str, seeds))}` then `report`; "
+        "Command: `python benchmarks/data_efficiency.py arms --seeds S.. --arms A..` (which arms ran on which seeds: "
+        f"the headlines), then `report --seeds {' '.join(map(str, seeds))}`; "
         f"report {machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary "
         f"under `results/data_efficiency/`).",
         f"Tables: seeds {', '.join(map(str, common))}, where every arm below reached round 3. Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}); arms differ only "
