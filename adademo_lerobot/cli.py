@@ -7,8 +7,8 @@ parse reads them as plain dicts (`--help`, flag errors and the config's `validat
 then is LeRobot imported and the config parsed again with LeRobot's types in their place.
 
 `--config_path` always goes straight to draccus so YAML recipes and presets work; for LeRobot's training config,
-`--policy.path` is taken out of the flags as `lerobot.configs.parser.wrap` does (the config reads it back with
-`parser.get_path_arg`).
+`--policy.path` is taken out of the flags as `lerobot.configs.parser.wrap` does and handed to the config
+(`use_pretrained_policy`): only this module reads the command line, never a config or a library function.
 """
 
 from __future__ import annotations
@@ -143,12 +143,22 @@ def parse_config(config_cls: type, argv: list[str]) -> Any:
     if choices:
         config_cls = with_lerobot_types(config_cls, {p: lerobot_choice_type(k) for p, k in choices.items()})
     config_path, args = _pop_arg("config_path", argv)
-    if hasattr(config_cls, "__get_path_fields__"):  # LeRobot's training config: --policy.type / --policy.path
-        from lerobot.configs import parser
+    if not hasattr(config_cls, "__get_path_fields__"):
+        return draccus.parse(config_class=config_cls, config_path=config_path, args=args)
+    # LeRobot's training config: --policy.type, or --policy.path with --policy.* overrides of its config. The path
+    # is read here, from this command's own flags, and handed to the config (which never reads sys.argv).
+    from lerobot.configs import parser
 
-        lerobot_choice_type("policy")
-        args = parser.filter_path_args(config_cls.__get_path_fields__(), args)
-    return draccus.parse(config_class=config_cls, config_path=config_path, args=args)
+    lerobot_choice_type("policy")
+    policy_path, overrides = parser.get_path_arg("policy", args), parser.get_cli_overrides("policy", args)
+    cfg = draccus.parse(
+        config_class=config_cls,
+        config_path=config_path,
+        args=parser.filter_path_args(config_cls.__get_path_fields__(), args),
+    )
+    if policy_path:
+        cfg.use_pretrained_policy(policy_path, overrides)
+    return cfg
 
 
 def _resolve(target: str | Callable) -> Any:

@@ -282,8 +282,14 @@ def run(cfg: RunConfig) -> Path:
     run_dir = Path(cfg.run_dir)
     start, started = None, saved_stage(run_dir, "start")
     if cfg.dataset.repo_id is not None and started is None:  # checked before anything is written
-        recipe_type = cfg.train.policy.type if cfg.train.policy else None
-        start = check_start(cfg.dataset, cfg.policy, cfg.suite, cfg.suite == default_suite(), recipe_type)
+        start = check_start(
+            cfg.dataset,
+            cfg.policy,
+            cfg.suite,
+            cfg.suite == default_suite(),
+            cfg.train.policy,
+            finetune=cfg.train.mode == "finetune",
+        )
         suite_config = start.suite_config
     elif started is not None:
         suite_config = suite_config_from_dict(started["settings"]["suite"])

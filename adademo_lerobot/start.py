@@ -209,7 +209,8 @@ def check_start(
     policy: StartPolicyArgs,
     requested_suite: SuiteConfig,
     requested_is_default: bool,
-    recipe_policy_type: str | None,
+    recipe_policy=None,
+    finetune: bool = False,
 ) -> Start:
     """Resolve and check the starting dataset and checkpoint; writes nothing outside the download caches."""
     from adademo_lerobot.dataset.features import dataset_features
@@ -228,13 +229,38 @@ def check_start(
     checkpoint = checkpoint_commit = policy_type = None
     if policy.path is not None:
         checkpoint, checkpoint_commit = locate_checkpoint(policy)
-        policy_type = check_policy(checkpoint, dataset_features(suite)).type
-        if recipe_policy_type is not None and policy_type != recipe_policy_type:
+        checkpoint_config = check_policy(checkpoint, dataset_features(suite))
+        policy_type = checkpoint_config.type
+        if recipe_policy is not None and policy_type != recipe_policy.type:
             raise AdaDemoError(
-                f"--policy.path holds a {policy_type} policy but the recipe trains {recipe_policy_type}: use a "
+                f"--policy.path holds a {policy_type} policy but the recipe trains {recipe_policy.type}: use a "
                 f"recipe for {policy_type} (or --train.policy.type={policy_type}), or another checkpoint"
             )
+        if recipe_policy is not None and finetune:
+            check_recipe_policy_is_the_checkpoints(recipe_policy, checkpoint_config)
     return Start(root, dataset_commit, suite_config, checkpoint, checkpoint_commit, policy_type)
+
+
+# Policy fields that say where and how a policy runs or is stored, not what it is.
+NOT_ARCHITECTURE = {"device", "push_to_hub", "repo_id", "pretrained_path", "input_features", "output_features"}
+
+
+def check_recipe_policy_is_the_checkpoints(recipe_policy, checkpoint_config) -> None:
+    """With --train.mode=finetune every round starts from the checkpoint, so the recipe's `train.policy` fields
+    cannot take effect: refuse those that differ from the checkpoint's rather than ignore them."""
+    import dataclasses
+
+    defaults = type(recipe_policy)()
+    for f in dataclasses.fields(recipe_policy):
+        value = getattr(recipe_policy, f.name)
+        if f.name in NOT_ARCHITECTURE or value == getattr(defaults, f.name):
+            continue
+        if value != getattr(checkpoint_config, f.name, None):
+            raise AdaDemoError(
+                f"--train.policy.{f.name}={value} differs from the checkpoint's "
+                f"{f.name}={getattr(checkpoint_config, f.name, None)} and fine-tuning (--train.mode=finetune) "
+                "keeps the checkpoint's: drop the flag (or the recipe's train.policy), or use --train.mode=scratch"
+            )
 
 
 def prepare_dataset(start: Start, copy: bool, run_dataset: Path) -> tuple[Path, dict[str, str]]:

@@ -7,6 +7,7 @@ few lines of the training loop that build the DataLoader around our `WeightedFra
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -29,7 +30,7 @@ from adademo_lerobot.dataset.store import recover_interrupted_write
 from adademo_lerobot.dataset.video import video_backend
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.files import check_writable_location
-from adademo_lerobot.policy import POLICY_TYPES, check_policy_matches_features
+from adademo_lerobot.policy import POLICY_TYPES, check_checkpoint_folder, check_policy_matches_features
 from adademo_lerobot.samplers import frame_weights, make_sampling_scheme
 from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 
@@ -37,6 +38,32 @@ from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 # near-zero std turns float noise at evaluation time into huge inputs.
 MIN_STD = 1e-2
 ADADEMO_TRAIN_INFO = "adademo_train.json"
+
+
+# lerobot-train flags this training loop does not implement (it trains one policy on one local dataset, and
+# evaluates with adademo-eval): given a value other than LeRobot's default, they are refused, never ignored.
+NOT_IMPLEMENTED = (
+    "env", "reward_model", "peft", "sample_weighting", "eval", "eval_steps", "max_eval_samples",
+    "save_checkpoint", "save_checkpoint_to_hub", "rename_map", "job",
+    "dataset.episodes", "dataset.streaming", "dataset.eval_split", "dataset.repo_type",
+)  # fmt: skip
+
+
+def _field_default(cls, name: str):
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+
+
+def check_no_unimplemented_flags(cfg: TrainPipelineConfig) -> None:
+    for path in NOT_IMPLEMENTED:
+        owner, name = (cfg.dataset, path.split(".")[1]) if path.startswith("dataset.") else (cfg, path)
+        value = getattr(owner, name)
+        if value != _field_default(DatasetConfig if owner is cfg.dataset else TrainPipelineConfig, name):
+            raise AdaDemoError(
+                f"--{path} is a lerobot-train flag that adademo-train does not implement (got {value!r}); drop "
+                "it (evaluate with adademo-eval; train on a subset with LeRobot's dataset tools first), or use "
+                "lerobot-train"
+            )
 
 
 @dataclass
@@ -57,20 +84,22 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
     log_freq: int = 200
     save_freq: int = 1000
 
-    def validate(self) -> None:
-        from lerobot.configs import parser
+    def use_pretrained_policy(self, path: str, overrides: list[str] | None = None) -> None:
+        """Start from the checkpoint at `path` (`--policy.path`), its config changed by `overrides`
+        (`--policy.dim_model=...`). The command line calls this; as a library, set `policy` and its
+        `pretrained_path` yourself: nothing here reads the process's command line."""
+        self.policy = pretrained_policy_config(path, overrides or [])
 
+    def validate(self) -> None:
         if self.dataset.root is None:
             raise AdaDemoError("--dataset.root is required (the adademo dataset to train on)")
+        check_no_unimplemented_flags(self)
         if self.steps < 1 or self.batch_size < 1:
             raise AdaDemoError(f"--steps and --batch_size must be >= 1 (got {self.steps}, {self.batch_size})")
         if self.output_dir is None:
             raise AdaDemoError("--output_dir is required")
         self.output_dir = Path(self.output_dir)
         check_writable_location(self.output_dir, "--output_dir")
-        policy_path = parser.get_path_arg("policy")
-        if policy_path is None and self.policy is not None and self.policy.pretrained_path is not None:
-            policy_path = str(self.policy.pretrained_path)  # set programmatically (adademo-run fine-tuning)
         if self.resume:
             last = find_last_checkpoint(self.output_dir)
             if last is None:
@@ -78,19 +107,15 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
                     f"--resume=true but {self.output_dir} has no complete checkpoint to resume from"
                 )
             self.checkpoint_path = last
-            policy_path = str(last / "pretrained_model")
+            device = self.policy.device if self.policy is not None else None
+            self.policy = pretrained_policy_config(last / "pretrained_model")
+            self.policy.device = device or self.policy.device
         elif self.output_dir.exists() and any(self.output_dir.iterdir()):
             raise AdaDemoError(
                 f"--output_dir={self.output_dir} already exists: pass --resume=true to continue it or choose another"
             )
-        if policy_path:
-            if not (Path(policy_path) / "config.json").exists():
-                raise AdaDemoError(
-                    f"no LeRobot checkpoint at {policy_path} (expected .../pretrained_model/config.json)"
-                )
-            overrides = parser.get_cli_overrides("policy") if not self.resume else []
-            self.policy = PreTrainedConfig.from_pretrained(policy_path, cli_overrides=overrides)
-            self.policy.pretrained_path = Path(policy_path)
+        elif self.policy is not None and self.policy.pretrained_path is not None:
+            check_checkpoint_folder(self.policy.pretrained_path)
         if self.policy is None:
             raise AdaDemoError(
                 "choose a policy: --policy.type=act|diffusion, or --policy.path=CKPT to fine-tune"
@@ -117,6 +142,14 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
                 peak_lr=lr,
                 decay_lr=lr / 100,
             )
+
+
+def pretrained_policy_config(path: str | Path, overrides: list[str] | None = None) -> PreTrainedConfig:
+    """A checkpoint's policy config (with `--policy.*`-style overrides), marked to start from its weights."""
+    path = check_checkpoint_folder(path)
+    policy = PreTrainedConfig.from_pretrained(path, cli_overrides=list(overrides or []))
+    policy.pretrained_path = path
+    return policy
 
 
 def find_last_checkpoint(output_dir: Path) -> Path | None:
@@ -191,6 +224,8 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
 
     cfg.validate()
     torch.set_num_threads(cfg.torch_threads)
+    if cfg.cudnn_deterministic:  # as lerobot-train does
+        torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = True, False
     root = Path(cfg.dataset.root)
     if not (root / "meta" / "info.json").exists():
         raise AdaDemoError(f"no LeRobot dataset at {root}")
@@ -264,7 +299,13 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         frames, loader_args = InMemoryFrames(dataset), {"collate_fn": whole_batch, "num_workers": 0}
     else:
         frames = dataset
-        loader_args = {"num_workers": cfg.num_workers, "prefetch_factor": 2 if cfg.num_workers > 0 else None}
+        loader_args = {"num_workers": cfg.num_workers}
+        if cfg.num_workers > 0:
+            loader_args |= {
+                "prefetch_factor": cfg.prefetch_factor,
+                "persistent_workers": cfg.persistent_workers,
+                "multiprocessing_context": cfg.dataloader_multiprocessing_context,
+            }
     dataloader = torch.utils.data.DataLoader(
         frames,
         batch_size=cfg.batch_size,

@@ -17,7 +17,7 @@ from adademo_lerobot.ledger import read_ledger
 
 CONTINUE = [
     "--config_path=recipes/continue_from_checkpoint.yaml",
-    "--rounds=1",
+    "--rounds=2",
     "--budget=[2]",
     "--max_demos_per_task=[2]",
     "--train.finetune_steps=4",
@@ -31,6 +31,19 @@ CONTINUE = [
 @pytest.fixture(scope="module")
 def checkpoint(act_run) -> Path:
     return act_run / "checkpoints" / "last" / "pretrained_model"
+
+
+def started_from(run_dir: Path, round_index: int) -> Path | None:
+    """The checkpoint round i's training started from, as its saved train_config.json says (None: scratch)."""
+    trained = run_dir / "train" / f"round-{round_index}" / "checkpoints" / "last" / "pretrained_model"
+    path = json.loads((trained / "train_config.json").read_text())["policy"]["pretrained_path"]
+    return None if path is None else Path(path).resolve()
+
+
+def round_checkpoint(run_dir: Path, round_index: int) -> Path:
+    return (
+        run_dir / "train" / f"round-{round_index}" / "checkpoints" / "last" / "pretrained_model"
+    ).resolve()
 
 
 def eval_policy(run_dir: Path, round_index: int) -> str:
@@ -68,19 +81,23 @@ def test_continue_from_a_local_dataset_and_checkpoint_then_resume(reach_push_dat
         "expand-1",
         "train-1",
         "eval-1",
+        "expand-2",
+        "train-2",
+        "eval-2",
     ]  # no collect, no train-0
 
-    # Round 0 is the given checkpoint; round 1 fine-tunes from it.
+    # Round 0 is the given checkpoint; round 1 fine-tunes from it, round 2 from round 1's (not the user's again).
     assert Path(eval_policy(run_dir, 0)) == checkpoint.resolve()
-    trained = run_dir / "train" / "round-1" / "checkpoints" / "last" / "pretrained_model"
-    train_cfg = json.loads((trained / "train_config.json").read_text())
-    assert Path(train_cfg["policy"]["pretrained_path"]).resolve() == checkpoint.resolve()
+    assert started_from(run_dir, 1) == checkpoint.resolve()
+    assert started_from(run_dir, 2) == round_checkpoint(run_dir, 1)
+    assert Path(eval_policy(run_dir, 2)) == round_checkpoint(run_dir, 2)
 
     # The run expanded its own copy; the user's dataset is byte-for-byte what it was, and the run says so.
     copy = run_dir / "dataset"
     eps = read_episode_metadata(copy)
     assert (eps["adademo/round"] == 0).sum() == 6 and (eps["adademo/round"] == 1).sum() == 2
-    assert [r["round"] for r in read_ledger(copy)] == [1, 1]
+    assert (eps["adademo/round"] == 2).sum() == 2
+    assert [r["round"] for r in read_ledger(copy)] == [1, 1, 2, 2]
     assert file_digests(reach_push_dataset) == before
     origin = json.loads((run_dir / "origin.json").read_text())
     assert origin["files"] == before
@@ -88,6 +105,33 @@ def test_continue_from_a_local_dataset_and_checkpoint_then_resume(reach_push_dat
     assert origin["policy"]["path"] == str(checkpoint) and origin["policy"]["type"] == "act"
     report = (run_dir / "report" / "report.md").read_text()
     assert "Started from dataset me/reach-push" in report and "round 0: SR % (demos)" in report
+
+
+def test_continue_in_scratch_mode_trains_every_round_from_scratch(reach_push_dataset, checkpoint, tmp_path):
+    """--train.mode=scratch: the user's checkpoint is round 0's policy and the architecture of later rounds, never
+    their starting weights."""
+    run_dir = tmp_path / "run"
+    # Fine-tuning keeps the checkpoint's architecture: a recipe field that would change it is refused, not ignored.
+    assert_cli_error(
+        "adademo-run", *CONTINUE, f"--run_dir={run_dir}", f"--dataset.root={reach_push_dataset}",
+        f"--policy.path={checkpoint}", "--train.policy.type=act", "--train.policy.dim_model=64",
+        match="--train.policy.dim_model=64 differs from the checkpoint's dim_model=32",
+    )  # fmt: skip
+    assert not run_dir.exists()
+    run_cli(
+        "adademo-run",
+        *CONTINUE,
+        f"--run_dir={run_dir}",
+        f"--dataset.root={reach_push_dataset}",
+        f"--policy.path={checkpoint}",
+        "--train.mode=scratch",
+        "--train.steps=4",
+    )
+    assert started_from(run_dir, 1) is None and started_from(run_dir, 2) is None
+    for i in (1, 2):
+        config = json.loads((round_checkpoint(run_dir, i) / "config.json").read_text())
+        assert config["dim_model"] == 32  # the checkpoint's architecture
+        assert Path(eval_policy(run_dir, i)) == round_checkpoint(run_dir, i)
 
 
 @pytest.mark.slow
@@ -194,7 +238,7 @@ def test_continue_from_a_hub_dataset_and_checkpoint(hub, reach_push_dataset, che
     run_dir = tmp_path / "run"
     proc = adademo_run(
         run_dir,
-        "--rounds=0",
+        "--rounds=2",
         "--dataset.repo_id=alice/reach-push",
         f"--dataset.revision={pushed['dataset']}",
         "--policy.path=alice/tiny-act",
@@ -210,6 +254,9 @@ def test_continue_from_a_hub_dataset_and_checkpoint(hub, reach_push_dataset, che
     assert (tmp_path / "lerobot_home" / "hub").is_dir()  # LeRobot's own download location
     assert (read_episode_metadata(run_dir / "dataset")["adademo/round"] == 0).sum() == 6
     assert "alice--tiny-act" in eval_policy(run_dir, 0)
+    # Round 1 fine-tunes from the downloaded checkpoint, round 2 from round 1's (the hub id is not read again).
+    assert started_from(run_dir, 1) == Path(eval_policy(run_dir, 0)).resolve()
+    assert started_from(run_dir, 2) == round_checkpoint(run_dir, 1)
 
     bad = tmp_path / "bad"
     for args, match in (

@@ -44,6 +44,22 @@ def test_eval_cli_writes_records_and_success_rates(act_run, reach_push_dataset, 
         assert per_task[task]["successes"] == int(records[records.task == task].success.sum())
     assert summary["env_steps"] == int(records.steps.sum())
 
+    # With a dataset, --suite.tasks picks a subset of its tasks and --suite.max_episode_steps the step limit.
+    subset = tmp_path / "subset"
+    run_cli(
+        "adademo-eval",
+        f"--policy.path={ckpt}",
+        f"--dataset.root={reach_push_dataset}",
+        "--suite.tasks=push-v3",
+        "--suite.max_episode_steps=7",
+        "--episodes_per_task=3",
+        "--seed=5",
+        f"--output_dir={subset}",
+    )
+    push = pd.read_parquet(subset / "eval_episodes.parquet")
+    assert set(push.task) == {"push-v3"} and list(push.seed) == evaluation_seeds(5, "push-v3", 3)
+    assert push.steps.max() <= 7 and push.steps.max() < records[records.task == "push-v3"].steps.max()
+
 
 def test_eval_runs_a_stock_lerobot_train_checkpoint(stock_act_checkpoint, reach_push_dataset, tmp_path):
     out = tmp_path / "stock_eval"
@@ -88,7 +104,7 @@ def test_chunked_evaluation_equals_lerobots_rollout(act_run):
     assert fast.env_steps == stock.env_steps > 0
 
 
-def test_eval_bad_input(act_run, tmp_path):
+def test_eval_bad_input(act_run, reach_push_dataset, tmp_path):
     def fails(*args, match):
         return assert_cli_error("adademo-eval", *args, match=match)
 
@@ -106,4 +122,10 @@ def test_eval_bad_input(act_run, tmp_path):
         f"--output_dir={tmp_path}/o",
         match="observation.environment_state",
     )
+    # A dataset's suite decides; suite flags that contradict it are refused, not ignored.
+    dataset = f"--dataset.root={reach_push_dataset}"
+    common = [f"--policy.path={ckpt}", dataset, f"--output_dir={tmp_path}/o"]
+    fails(*common, "--suite.tasks=window-open-v3", match="window-open-v3 not in the dataset's tasks")
+    fails(*common, "--suite.obs_type=pixels_state", match="--suite.obs_type=pixels_state contradicts")
+    fails(*common, "--suite.type=fetch", match="the dataset's suite is metaworld")
     assert not (tmp_path / "o").exists()

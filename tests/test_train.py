@@ -156,6 +156,21 @@ def test_bad_input(reach_push_dataset, act_run, tmp_path):
         *common, *TINY_ACT, "--min_task_weight=0.6", f"--output_dir={tmp_path / 'c'}", match="min_task_weight"
     )
     fails(*common, *TINY_ACT, f"--output_dir={act_run}", match="--resume=true")
+    # lerobot-train flags this loop does not implement are refused, not ignored.
+    fails(
+        *common,
+        *TINY_ACT,
+        "--dataset.episodes=[0,1]",
+        f"--output_dir={tmp_path / 'g'}",
+        match="--dataset.episodes",
+    )
+    fails(
+        *common,
+        *TINY_ACT,
+        "--eval.n_episodes=3",
+        f"--output_dir={tmp_path / 'g'}",
+        match="--eval is a lerobot",
+    )
     fails(*common, *TINY_ACT, "--output_dir=/proc/version/out", match="output_dir")
     fails(
         *common,
@@ -181,7 +196,7 @@ def test_bad_input(reach_push_dataset, act_run, tmp_path):
         f"--output_dir={tmp_path / 'e'}",
         match="observation.environment_state",
     )
-    assert not any((tmp_path / d).exists() for d in "abcef")
+    assert not any((tmp_path / d).exists() for d in "abcefg")
 
 
 def test_trains_on_a_plain_lerobot_dataset(reach_push_dataset, tmp_path):
