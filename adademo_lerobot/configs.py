@@ -10,6 +10,7 @@ from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.executors import RayArgs
 from adademo_lerobot.samplers import check_sampler_flags
 from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
+from adademo_lerobot.takeover import TakeoverArgs
 
 LR_SCHEDULES = ("preset", "cosine")
 LEROBOT_CHOICE = "lerobot_choice"  # field metadata: the kind of LeRobot config the field holds
@@ -142,6 +143,10 @@ class ExpandConfig:
     plan_only: bool = False
     seed: int = 0
     collector: CollectorConfig = field(default_factory=default_collector)
+    # Where a demonstration starts: `initial` (the failed episode's initial state: the paper) or `takeover` (a
+    # correction: the expert takes over the failed rollout at the step `--takeover.*` picks).
+    demo_start: str = "initial"
+    takeover: TakeoverArgs = field(default_factory=TakeoverArgs)
     eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
     device: str = "cpu"
     torch_threads: int = 2

@@ -18,7 +18,8 @@ import pandas as pd
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.patching import temporarily_set
 from adademo_lerobot.policy import LoadedPolicy
-from adademo_lerobot.records import EpisodeRecord
+from adademo_lerobot.recording import RolloutTracer
+from adademo_lerobot.records import EpisodeRecord, RolloutTrace
 from adademo_lerobot.seeds import derive_seed
 from adademo_lerobot.suites.base import TaskSuite, cached_for_task
 from adademo_lerobot.tables import table
@@ -72,23 +73,38 @@ class BatchedEvaluator:
         the float sums of a matrix product depend on the thread count, and episodes amplify such differences, so
         outcomes would otherwise depend on the machine's and the worker's thread settings (batches of <= 10
         observations gain little from more threads)."""
+        return [record for record, _ in self._run(task, seeds, traced=False)]
+
+    def run_traced(self, task: str, seeds: list[int]) -> list[tuple[EpisodeRecord, RolloutTrace]]:
+        """`run`, also keeping every episode's states, observations and actions step by step (the same
+        episodes: tracing only reads the simulator)."""
+        return self._run(task, seeds, traced=True)
+
+    def _run(
+        self, task: str, seeds: list[int], traced: bool
+    ) -> list[tuple[EpisodeRecord, RolloutTrace | None]]:
         import torch
 
-        records: list[EpisodeRecord] = []
+        out: list[tuple[EpisodeRecord, RolloutTrace | None]] = []
         for begin in range(0, len(seeds), self.batch_size):
             batch_seeds = seeds[begin : begin + self.batch_size]
             states = [self.suite.sample_initial_state(task, s) for s in batch_seeds]
             envs = self._envs(task, len(batch_seeds))
+            if traced:
+                envs = [RolloutTracer(env) for env in envs]
             torch.manual_seed(derive_seed("rollout", *batch_seeds) % 2**63)
             with torch.inference_mode(), one_torch_thread():
                 run_batch = self._run_chunked if self.chunked else self._run_lerobot_rollout
                 results = run_batch(task, envs, states, batch_seeds)
-            for s, st, (success, steps, reward) in zip(batch_seeds, states, results, strict=True):
+            for i, (s, st, (success, steps, reward)) in enumerate(
+                zip(batch_seeds, states, results, strict=True)
+            ):
                 self.env_steps += steps
-                records.append(
-                    EpisodeRecord(task, int(s), np.asarray(st, np.float64).tolist(), success, steps, reward)
+                record = EpisodeRecord(
+                    task, int(s), np.asarray(st, np.float64).tolist(), success, steps, reward
                 )
-        return records
+                out.append((record, envs[i].trace if traced else None))
+        return out
 
     def _run_chunked(
         self, task: str, envs: list, states: list, seeds: list[int]

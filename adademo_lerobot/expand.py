@@ -32,12 +32,19 @@ from adademo_lerobot.strategies.budgeted import failure_mean, pick_target_succes
 from adademo_lerobot.strategies.task_only import estimate_success
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.tables import table
+from adademo_lerobot.takeover import check_demo_start
 
 DEFAULT_TARGET_SUCCESSES = 10
 
 
 def validate(cfg) -> None:
-    make_strategy(cfg.strategy)
+    strategy = make_strategy(cfg.strategy)
+    check_demo_start(cfg.demo_start, cfg.takeover)
+    if cfg.demo_start == "takeover" and not strategy.collects_at_failed_states:
+        raise AdaDemoError(
+            f"--demo_start=takeover corrects failed policy rollouts; --strategy={cfg.strategy} collects from fresh "
+            "initial states without evaluating: use --strategy=adademo or budgeted, or --demo_start=initial"
+        )
     for flag, value in (
         ("target_successes", cfg.target_successes),
         ("max_demos_per_task", cfg.max_demos_per_task),
@@ -83,6 +90,14 @@ def target_successes_for(cfg, root: Path, suite, round_index: int) -> int:
         + f"; total {sum(plan.values())})"
     )
     return target
+
+
+def demo_start_settings(cfg) -> dict:
+    """The round's demonstration start, as journaled (absent for the paper's: rounds journaled before it existed
+    resume unchanged)."""
+    if cfg.demo_start == "initial":
+        return {}
+    return {"demo_start": cfg.demo_start, "takeover": cfg.takeover.to_dict()}
 
 
 def next_round(root: Path) -> int:
@@ -184,6 +199,8 @@ def run_expand(cfg, round_index: int | None = None, executor=None) -> list[TaskR
         suite = make_suite(load_suite_config(root))
         if not cfg.plan_only:
             cfg.collector.validate(suite)
+            if cfg.demo_start == "takeover":
+                cfg.collector.check_acts_mid_episode(suite)
         if needs_policy:
             from adademo_lerobot.policy import check_policy
 
@@ -240,6 +257,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
         "budget": cfg.budget,
         "posterior_decay": cfg.posterior_decay,
         "commit_by_task": not hasattr(strategy, "expand_round"),
+        "takeover": cfg.takeover if cfg.demo_start == "takeover" else None,
     }
     expert = cfg.collector.expert_name(suite)
     if cfg.plan_only:
@@ -262,6 +280,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
             "max_eval_episodes_per_task": max_eval,
             "seed": cfg.seed,
             "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
+            **demo_start_settings(cfg),
         }
     )
     bar = tqdm(

@@ -100,9 +100,9 @@ class RoundJournal:
             self.append({"type": "start", **settings})
             return
         started = {k: v for k, v in entries[0].items() if k != "type"}
-        diffs = [k for k in settings if started.get(k) != settings[k]]
+        diffs = [k for k in {**started, **settings} if started.get(k) != settings.get(k)]
         if diffs:
-            details = ", ".join(f"{k}: {started.get(k)!r} -> {settings[k]!r}" for k in diffs)
+            details = ", ".join(f"{k}: {started.get(k)!r} -> {settings.get(k)!r}" for k in diffs)
             raise AdaDemoError(
                 f"round {self.round_index} was started with other settings ({details}); rerun it with the same "
                 f"flags to finish it, or delete {self.path} to discard its evaluations"

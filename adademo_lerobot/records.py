@@ -10,13 +10,21 @@ import numpy as np
 
 @dataclass
 class Demonstration:
-    """A successful expert episode from exactly `initial_state`: LeRobot frames (observation + executed action)."""
+    """A successful expert episode: LeRobot frames (observation + executed action) from exactly `initial_state`,
+    or, for a correction, from `start_state` (the whole state at step `start_step` of a failed policy rollout
+    from `initial_state`)."""
 
     task: str
     initial_state: np.ndarray
     seed: int
     frames: list[dict]
     attempts: int
+    start_step: int = 0
+    start_state: np.ndarray | None = None
+
+    @property
+    def is_correction(self) -> bool:
+        return self.start_state is not None
 
 
 @dataclass
@@ -30,6 +38,7 @@ class CollectionResult:
     attempts: int
     env_steps: int
     failed_attempts: int = 0
+    start_step: int = 0  # a correction's step within the failed rollout (0: from the initial state)
 
 
 @dataclass
@@ -42,6 +51,10 @@ class EpisodeRecord:
     success: bool
     steps: int
     sum_reward: float
+    # --demo_start=takeover, failed episodes: where the expert takes over (step, rule, whole state there).
+    takeover_step: int | None = None
+    takeover_rule: str | None = None
+    takeover_state: list[float] | None = None
 
 
 @dataclass
@@ -67,7 +80,9 @@ class TaskRoundRecord:
     eval_bound_hit: bool = False
     planned_demos: int | None = None  # task_only / budgeted: the demos planned for the task
     eval_env_steps: int = 0
-    collection_env_steps: int = 0
+    collection_env_steps: int = 0  # env steps under the expert's control, failed attempts included
+    demo_frames: int = 0  # frames of the demonstrations added (a correction's: from its takeover step)
+    corrections: int = 0  # demonstrations that start mid-episode (--demo_start=takeover)
     wall_seconds: float = 0.0
     expert_failed_states: list[dict] = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # strategy-specific figures (e.g. the budgeted posterior)
@@ -75,3 +90,13 @@ class TaskRoundRecord:
     @property
     def success_rate(self) -> float | None:
         return self.successes / self.eval_episodes if self.eval_episodes else None
+
+
+@dataclass
+class RolloutTrace:
+    """A policy episode step by step: the whole state (`get_state()`) and the observation before every action
+    (one more than actions: the last is where the episode ended) and the action executed."""
+
+    states: list[np.ndarray]
+    observations: list[dict]
+    actions: list[np.ndarray]

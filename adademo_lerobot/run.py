@@ -56,8 +56,9 @@ from adademo_lerobot.start import (
     combined_digest,
     prepare_dataset,
 )
-from adademo_lerobot.strategies import STRATEGIES
+from adademo_lerobot.strategies import STRATEGIES, make_strategy
 from adademo_lerobot.suites import SuiteConfig, make_suite, suite_config_from_dict
+from adademo_lerobot.takeover import TakeoverArgs, check_demo_start
 
 STEPS_SCHEDULES = ("constant", "proportional")
 
@@ -118,6 +119,10 @@ class RunConfig:
     # budgeted: weight of an earlier round's evaluation outcomes per round since.
     posterior_decay: float = 0.5
     plan_episodes_per_task: int = 20
+    # Where a demonstration starts: `initial` (the failed episode's initial state: the paper) or `takeover` (a
+    # correction: the expert takes over the failed rollout at the step `--takeover.*` picks).
+    demo_start: str = "initial"
+    takeover: TakeoverArgs = field(default_factory=TakeoverArgs)
     seed: int = 0
     train: RunTrainArgs = field(default_factory=RunTrainArgs)
     eval: RunEvalArgs = field(default_factory=RunEvalArgs)
@@ -151,6 +156,13 @@ class RunConfig:
             )
         if self.strategy == "budgeted" and not self.budget:
             raise AdaDemoError("--strategy=budgeted needs --budget=[B1,B2,...] (demonstrations per round)")
+        check_demo_start(self.demo_start, self.takeover)
+        if self.demo_start == "takeover" and not make_strategy(self.strategy).collects_at_failed_states:
+            raise AdaDemoError(
+                f"--demo_start=takeover corrects failed policy rollouts; --strategy={self.strategy} collects from "
+                "fresh initial states without evaluating: use --strategy=adademo or budgeted, or "
+                "--demo_start=initial"
+            )
         if self.dataset.root is not None and self.dataset.repo_id is None:
             self.dataset.repo_id = f"local/{Path(self.dataset.root).name}"
         if self.policy.path is not None and self.dataset.repo_id is None:
@@ -235,9 +247,11 @@ FIXED_SETTINGS = (
     "policy_type",
     "start",
     "lr_schedule",
+    "demo_start",
+    "takeover",
 )
 # Settings that runs started by an earlier release do not record, with the value those runs used.
-SETTINGS_ADDED_LATER = {"lr_schedule": "preset"}
+SETTINGS_ADDED_LATER = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}
 
 
 def run_settings(cfg: RunConfig, suite: dict) -> dict:
@@ -259,6 +273,8 @@ def run_settings(cfg: RunConfig, suite: dict) -> dict:
         "min_task_weight": cfg.train.min_task_weight,
         "sampler_alpha": cfg.train.sampler_alpha,
         "lr_schedule": cfg.train.lr_schedule,
+        "demo_start": cfg.demo_start,
+        "takeover": cfg.takeover.to_dict() if cfg.demo_start == "takeover" else None,
         "start": None
         if cfg.dataset.repo_id is None
         else {
@@ -297,6 +313,8 @@ def run(cfg: RunConfig) -> Path:
         suite_config = cfg.suite
     suite = make_suite(suite_config)
     cfg.collector.validate(suite)
+    if cfg.demo_start == "takeover":
+        cfg.collector.check_acts_mid_episode(suite)
     make_sampling_scheme(
         cfg.train.sampler, cfg.train.min_task_weight, len(suite.tasks), cfg.train.sampler_alpha
     )
@@ -514,6 +532,8 @@ def expand_round(
         plan_episodes_per_task=cfg.plan_episodes_per_task,
         seed=cfg.seed,
         collector=cfg.collector,
+        demo_start=cfg.demo_start,
+        takeover=cfg.takeover,
         eval=EvalBatchArgs(batch_size=cfg.eval.batch_size),
         device=cfg.device,
         torch_threads=cfg.train.torch_threads,

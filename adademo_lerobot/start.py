@@ -242,7 +242,14 @@ def check_start(
 
 
 # Policy fields that say where and how a policy runs or is stored, not what it is.
-NOT_ARCHITECTURE = {"device", "push_to_hub", "repo_id", "pretrained_path", "input_features", "output_features"}
+NOT_ARCHITECTURE = {
+    "device",
+    "push_to_hub",
+    "repo_id",
+    "pretrained_path",
+    "input_features",
+    "output_features",
+}
 
 
 def check_recipe_policy_is_the_checkpoints(recipe_policy, checkpoint_config) -> None:

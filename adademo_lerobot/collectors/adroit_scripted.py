@@ -374,6 +374,9 @@ EXPERTS = {
 
 class AdroitScriptedExpert(SimulatedExpertCollector):
     name = "adroit-scripted"
+    # Its phases (approach, descend, grasp, carry) and rate-limited references assume the episode's start: it
+    # cannot take over a ball already knocked away or half grasped.
+    acts_mid_episode = False
 
     def __init__(self, suite, config):
         super().__init__(suite, config)

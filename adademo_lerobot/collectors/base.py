@@ -19,7 +19,7 @@ from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.recording import EpisodeRecorder
 from adademo_lerobot.records import CollectionResult, Demonstration
 from adademo_lerobot.seeds import retry_noise_seed
-from adademo_lerobot.suites.base import TaskSuite, cached_for_task
+from adademo_lerobot.suites.base import TaskSuite, cached_for_task, full_state_step
 
 
 @dataclass
@@ -56,12 +56,30 @@ class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
     def expert_name(self, suite: TaskSuite) -> str:
         """The name recorded in each episode's `adademo/collector` (without building the expert)."""
 
+    def check_acts_mid_episode(self, suite: TaskSuite) -> None:
+        """Refuse `--demo_start=takeover` with an expert that cannot take over an episode mid-way."""
+        if not self.expert_class(suite).acts_mid_episode:
+            raise AdaDemoError(
+                f"--demo_start=takeover: the {self.expert_name(suite)} expert cannot take over mid-episode (it "
+                "acts only from an episode's start); use --demo_start=initial, or an expert that acts from any "
+                "state (--collector.type=policy)"
+            )
+
+    @abc.abstractmethod
+    def expert_class(self, suite: TaskSuite) -> type:
+        """The collector class `build` makes (read without building it)."""
+
 
 class ExpertCollector(Protocol):
     name: str
+    # Whether the expert can take over mid-episode, from any state (`--demo_start=takeover`).
+    acts_mid_episode: bool
 
-    def collect(self, task: str, initial_state: np.ndarray, seed: int) -> CollectionResult:
-        """A successful demonstration from exactly `initial_state`, or a counted failure."""
+    def collect(
+        self, task: str, initial_state: np.ndarray, seed: int, start_state: np.ndarray | None = None
+    ) -> CollectionResult:
+        """A successful demonstration from exactly `initial_state` (or, for a correction, from `start_state`, a
+        state of an episode from `initial_state`), or a counted failure."""
 
 
 class SimulatedExpertCollector:
@@ -72,6 +90,7 @@ class SimulatedExpertCollector:
     """
 
     name = "expert"
+    acts_mid_episode = True  # a fresh expert acts from the observation it is given, whatever the step
 
     def __init__(self, suite: TaskSuite, config: CollectorConfig):
         if config.max_attempts < 1:
@@ -87,6 +106,10 @@ class SimulatedExpertCollector:
     @abc.abstractmethod
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]: ...
 
+    def expert_first_action(self, task: str) -> Callable[[dict], np.ndarray]:
+        """The action a fresh expert would take first at an observation (what it does when it takes over there)."""
+        return lambda observation: np.asarray(self.expert_for(task)(observation), np.float64)
+
     def _env(self, task: str) -> EpisodeRecorder:
         return cached_for_task(
             self._envs,
@@ -95,14 +118,19 @@ class SimulatedExpertCollector:
             keep=4,
         )
 
-    def collect(self, task: str, initial_state: np.ndarray, seed: int) -> CollectionResult:
+    def collect(
+        self, task: str, initial_state: np.ndarray, seed: int, start_state: np.ndarray | None = None
+    ) -> CollectionResult:
         env = self._env(task)
         result = CollectionResult(task, np.asarray(initial_state, np.float64), seed, None, 0, 0)
+        if start_state is not None:
+            result.start_step = full_state_step(start_state)
+        start = {"initial_state": initial_state} if start_state is None else {"state": start_state}
         for attempt in range(self.config.max_attempts):
             expert = self.expert_for(task)
             noise_rng = np.random.default_rng(retry_noise_seed(seed, attempt))
             noise = self.config.retry_action_noise if attempt > 0 else 0.0
-            obs, _ = env.reset(options={"initial_state": initial_state})
+            obs, _ = env.reset(options=start)
             steps_after_success = None
             while True:
                 action = np.asarray(expert(obs), dtype=np.float64)
@@ -121,7 +149,13 @@ class SimulatedExpertCollector:
             result.attempts = attempt + 1
             if env.succeeded:
                 result.demonstration = Demonstration(
-                    task, result.initial_state, seed, env.frames, attempt + 1
+                    task,
+                    result.initial_state,
+                    seed,
+                    env.frames,
+                    attempt + 1,
+                    result.start_step,
+                    None if start_state is None else np.asarray(start_state, np.float64),
                 )
                 return result
             result.failed_attempts += 1

@@ -43,6 +43,9 @@ class PolicyCollectorConfig(CollectorConfig):
     def expert_name(self, suite: TaskSuite) -> str:
         return CheckpointExpert.name
 
+    def expert_class(self, suite: TaskSuite) -> type:
+        return CheckpointExpert
+
 
 class CheckpointExpert(SimulatedExpertCollector):
     name = "policy"

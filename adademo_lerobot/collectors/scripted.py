@@ -25,13 +25,12 @@ class ScriptedCollectorConfig(CollectorConfig):
     `adroit_scripted`)."""
 
     def build(self, suite: TaskSuite) -> ExpertCollector:
-        return self._expert_class(suite)(suite, self)
+        return self.expert_class(suite)(suite, self)
 
     def expert_name(self, suite: TaskSuite) -> str:
-        return self._expert_class(suite).name
+        return self.expert_class(suite).name
 
-    @staticmethod
-    def _expert_class(suite: TaskSuite) -> type:
+    def expert_class(self, suite: TaskSuite) -> type:
         if suite.name not in SCRIPTED_EXPERTS:
             raise AdaDemoError(f"no scripted expert for suite {suite.name!r}; use --collector.type=policy")
         return SCRIPTED_EXPERTS[suite.name]

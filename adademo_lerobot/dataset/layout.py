@@ -13,7 +13,15 @@ COL_ROUND = "adademo/round"
 COL_SOURCE = "adademo/source"
 COL_COLLECTOR = "adademo/collector"
 COL_SUITE = "adademo/suite"
-EPISODE_COLUMNS = (COL_INITIAL_STATE, COL_SEED, COL_ROUND, COL_SOURCE, COL_COLLECTOR, COL_SUITE)
+# Corrections (--demo_start=takeover): the step of the failed rollout where the expert took over and the whole
+# state there (`get_state()`); 0 and empty for demonstrations from the initial state.
+COL_START_STEP = "adademo/start_step"
+COL_START_STATE = "adademo/start_state"
+EPISODE_COLUMNS = (
+    COL_INITIAL_STATE, COL_SEED, COL_ROUND, COL_SOURCE, COL_COLLECTOR, COL_SUITE, COL_START_STEP, COL_START_STATE,
+)  # fmt: skip
+# The source of a correction (other episodes: the strategy that added them, `initial`, or IMPORTED_SOURCE).
+CORRECTION_SOURCE = "correction"
 
 # Episodes that arrived without adademo columns (recorded elsewhere, or edited by LeRobot's tools, which drop
 # extra columns) count as round 0 with this source and no initial state.

@@ -26,6 +26,8 @@ from adademo_lerobot.dataset.layout import (
     COL_ROUND,
     COL_SEED,
     COL_SOURCE,
+    COL_START_STATE,
+    COL_START_STEP,
     COL_SUITE,
     EPISODE_COLUMNS,
     IMPORTED_SOURCE,
@@ -155,12 +157,16 @@ def read_episode_metadata(root: str | Path) -> pd.DataFrame:
         for col, value in defaults.items():
             if col not in df.columns:
                 df[col] = value
-        if COL_INITIAL_STATE not in df.columns:
-            df[COL_INITIAL_STATE] = [np.zeros(0)] * len(df)
+        for col in (COL_INITIAL_STATE, COL_START_STATE):
+            if col not in df.columns:
+                df[col] = [np.zeros(0)] * len(df)
+        if COL_START_STEP not in df.columns:
+            df[COL_START_STEP] = 0
         tables.append(df)
     df = pd.concat(tables, ignore_index=True)
     df["task"] = [t[0] if len(t) else "" for t in df.pop("tasks")]
-    df[COL_INITIAL_STATE] = [np.asarray(v, dtype=np.float64) for v in df[COL_INITIAL_STATE]]
+    for col in (COL_INITIAL_STATE, COL_START_STATE):
+        df[col] = [np.asarray(v, dtype=np.float64) for v in df[col]]
     return df.set_index("episode_index").sort_index()
 
 

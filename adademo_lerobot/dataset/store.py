@@ -34,7 +34,10 @@ from adademo_lerobot.dataset.layout import (
     COL_ROUND,
     COL_SEED,
     COL_SOURCE,
+    COL_START_STATE,
+    COL_START_STEP,
     COL_SUITE,
+    CORRECTION_SOURCE,
     EPISODE_COLUMNS,
     IMPORTED_SOURCE,
     SUITE_FILE,
@@ -124,6 +127,8 @@ def _add_adademo_columns(path: Path, suite_name: str) -> None:
         COL_SOURCE: pa.array([IMPORTED_SOURCE] * n, pa.string()),
         COL_COLLECTOR: pa.array([""] * n, pa.string()),
         COL_SUITE: pa.array([suite_name] * n, pa.string()),
+        COL_START_STEP: pa.array([0] * n, pa.int64()),
+        COL_START_STATE: pa.array([[] for _ in range(n)], pa.list_(pa.float64())),
     }
     for name, column in values.items():
         if name not in table.column_names:
@@ -312,9 +317,13 @@ class DemoDataset:
                     COL_INITIAL_STATE: np.asarray(demo.initial_state, dtype=np.float64).tolist(),
                     COL_SEED: int(demo.seed),
                     COL_ROUND: int(round_index),
-                    COL_SOURCE: source,
+                    COL_SOURCE: CORRECTION_SOURCE if demo.is_correction else source,
                     COL_COLLECTOR: collector,
                     COL_SUITE: producer,
+                    COL_START_STEP: int(demo.start_step),
+                    COL_START_STATE: []
+                    if demo.start_state is None
+                    else np.asarray(demo.start_state, dtype=np.float64).tolist(),
                 }
                 with _saving_extra_columns(dataset, columns):
                     dataset.save_episode()

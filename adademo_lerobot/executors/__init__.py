@@ -20,6 +20,7 @@ from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.executors.worker import EpisodeWorker
 from adademo_lerobot.records import CollectionResult, EpisodeRecord
 from adademo_lerobot.suites import TaskSuite
+from adademo_lerobot.takeover import TakeoverArgs
 
 EXECUTORS = ("local", "ray")
 
@@ -55,8 +56,8 @@ class Executor(Protocol):
     parallel_tasks: bool  # True: the caller may run several tasks' loops at once (their units interleave)
 
     def use_policy(self, path: str | None) -> None: ...
-    def evaluate(self, task: str, seeds: list[int]) -> Pending: ...
-    def collect(self, task: str, seed: int) -> Pending: ...
+    def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> Pending: ...
+    def collect(self, task: str, seed: int, start_state: list[float] | None = None) -> Pending: ...
     def close(self) -> None: ...
 
 
@@ -84,12 +85,12 @@ class LocalExecutor:
         self._policy = str(path) if path else None
         self.worker.use_policy(self._policy)
 
-    def evaluate(self, task: str, seeds: list[int]) -> Lazy:
+    def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> Lazy:
         policy = self._policy
-        return Lazy(lambda: self.worker.evaluate(task, list(seeds), policy))
+        return Lazy(lambda: self.worker.evaluate(task, list(seeds), policy, takeover))
 
-    def collect(self, task: str, seed: int) -> Lazy:
-        return Lazy(lambda: self.worker.collect(task, seed))
+    def collect(self, task: str, seed: int, start_state: list[float] | None = None) -> Lazy:
+        return Lazy(lambda: self.worker.collect(task, seed, start_state))
 
     def close(self) -> None:
         self.worker.close()

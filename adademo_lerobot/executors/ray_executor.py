@@ -16,6 +16,7 @@ from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.executors import RayArgs
 from adademo_lerobot.executors.worker import EpisodeWorker
 from adademo_lerobot.suites import TaskSuite
+from adademo_lerobot.takeover import TakeoverArgs
 
 
 def ray_get(refs):
@@ -102,11 +103,11 @@ class RayExecutor:
         self._policy = str(path) if path else None
         ray_get([a.use_policy.remote(self._policy) for a in self.actors])
 
-    def evaluate(self, task: str, seeds: list[int]) -> RayPending:
-        return self._submit("evaluate", task, list(seeds), self._policy)
+    def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> RayPending:
+        return self._submit("evaluate", task, list(seeds), self._policy, takeover)
 
-    def collect(self, task: str, seed: int) -> RayPending:
-        return self._submit("collect", task, seed)
+    def collect(self, task: str, seed: int, start_state: list[float] | None = None) -> RayPending:
+        return self._submit("collect", task, seed, start_state)
 
     def worker_pids(self) -> list[int]:
         import ray

@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from adademo_lerobot.collectors import CollectorConfig, make_collector
 from adademo_lerobot.records import CollectionResult, EpisodeRecord
 from adademo_lerobot.suites import make_suite, suite_config_from_dict
+from adademo_lerobot.takeover import TakeoverArgs
 
 
 class EpisodeWorker:
@@ -56,15 +59,34 @@ class EpisodeWorker:
         )
         self._policy_path = path
 
-    def evaluate(self, task: str, seeds: list[int], policy_path: str) -> list[EpisodeRecord]:
+    def evaluate(
+        self, task: str, seeds: list[int], policy_path: str, takeover: TakeoverArgs | None = None
+    ) -> list[EpisodeRecord]:
+        """The policy's episodes from these seeds' initial states; with `takeover`, each failed episode's record
+        also says where the expert takes over (chosen here, where the rollout's states are)."""
         self.use_policy(policy_path)  # a restarted worker (after a crash) loads the policy again here
-        return self._evaluator.run(task, seeds)
+        if takeover is None:
+            return self._evaluator.run(task, seeds)
+        from adademo_lerobot.evaluation import one_torch_thread
+        from adademo_lerobot.takeover import choose_takeover
 
-    def collect(self, task: str, seed: int) -> CollectionResult:
+        records = []
+        for record, trace in self._evaluator.run_traced(task, seeds):
+            if not record.success:
+                with one_torch_thread():
+                    point = choose_takeover(trace, takeover, self.collector.expert_first_action(task))
+                record.takeover_step, record.takeover_rule = point.step, point.rule
+                record.takeover_state = point.state.tolist()
+            records.append(record)
+        return records
+
+    def collect(self, task: str, seed: int, start_state: list[float] | None = None) -> CollectionResult:
+        """A demonstration from the seed's initial state, or, for a correction, from `start_state`."""
         from adademo_lerobot.evaluation import one_torch_thread  # a policy expert acts as it would locally
 
+        start = None if start_state is None else np.asarray(start_state, np.float64)
         with one_torch_thread():
-            return self.collector.collect(task, self.suite.sample_initial_state(task, seed), seed)
+            return self.collector.collect(task, self.suite.sample_initial_state(task, seed), seed, start)
 
     def pid(self) -> int:
         return os.getpid()

@@ -8,6 +8,7 @@ from adademo_lerobot.strategies.base import RoundContext
 class AdaDemoStrategy:
     name = "adademo"
     needs_policy = True
+    collects_at_failed_states = True  # a correction needs a failed rollout to take over
 
     def expand_task(self, ctx: RoundContext, task: str) -> TaskRoundRecord:
         return collect_on_failed_states(ctx, task, ctx.new_record(task, self.name))

@@ -21,9 +21,10 @@ from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.ledger import RoundJournal
-from adademo_lerobot.records import Demonstration, TaskRoundRecord
+from adademo_lerobot.records import Demonstration, EpisodeRecord, TaskRoundRecord
 from adademo_lerobot.seeds import fresh_state_seed
 from adademo_lerobot.suites.base import TaskSuite
+from adademo_lerobot.takeover import TakeoverArgs
 
 # A task whose expert keeps failing stops after this many fresh initial states per requested demo.
 MAX_DRAWS_PER_DEMO = 3
@@ -40,6 +41,24 @@ def split_evenly(budget: int, tasks: list[str]) -> dict[str, int]:
     """Uniform's demos per task for a budget: B // K each, the first B mod K tasks one more (sums to B)."""
     base, extra = divmod(budget, len(tasks))
     return {t: base + (i < extra) for i, t in enumerate(tasks)}
+
+
+def eval_entry(task: str, record: EpisodeRecord) -> dict:
+    """The journal's entry for one evaluation (a failed one, with --demo_start=takeover, carries its takeover)."""
+    entry = {
+        "type": "eval",
+        "task": task,
+        "seed": record.seed,
+        "success": record.success,
+        "steps": record.steps,
+    }
+    if record.takeover_state is not None:
+        entry |= {
+            "takeover_step": record.takeover_step,
+            "takeover_rule": record.takeover_rule,
+            "takeover_state": record.takeover_state,
+        }
+    return entry
 
 
 @dataclass
@@ -126,9 +145,13 @@ class RoundContext:
     budget: int | None = None  # the budgeted strategy's demos for the round
     posterior_decay: float = 0.5  # the budgeted strategy's weight of a round's outcomes per round since
     commit_by_task: bool = True  # False: one loop over all tasks commits demos in the order they arrive
+    # --demo_start=takeover: demonstrations are corrections that start where the expert takes over the failed
+    # rollout (this rule picks the step); None: from the failed episode's initial state (the paper).
+    takeover: TakeoverArgs | None = None
     on_progress: Callable[[str, TaskRoundRecord], None] | None = None
     _committed: dict[str, set[int]] = field(default_factory=dict)
     _pending: dict[tuple[str, int], Pending] = field(default_factory=dict)
+    _takeover_states: dict[tuple[str, int], list[float]] = field(default_factory=dict)
     _appender: OrderedAppender | None = None
     _lock: threading.RLock = field(default_factory=threading.RLock)
     eval_env_steps: int = (
@@ -183,13 +206,16 @@ class RoundContext:
         todo = [s for s in seeds if s not in known]
         if todo:
             fresh = {
-                r.seed: {"type": "eval", "task": task, "seed": r.seed, "success": r.success, "steps": r.steps}
-                for r in self.executor.evaluate(task, todo).result()
+                r.seed: eval_entry(task, r)
+                for r in self.executor.evaluate(task, todo, self.takeover).result()
             }
             self._journal(*(fresh[s] for s in todo))
             with self._lock:
                 self.eval_env_steps += sum(e["steps"] for e in fresh.values())
             known.update(fresh)
+        for s in seeds:
+            if self.takeover is not None and not known[s]["success"]:
+                self._takeover_states[(task, s)] = known[s]["takeover_state"]
         return [Outcome(s, bool(known[s]["success"])) for s in seeds]
 
     def evaluation_cost(self, task: str, record: TaskRoundRecord) -> None:
@@ -206,27 +232,40 @@ class RoundContext:
         )
         for seed in seeds:
             if seed not in done and (task, seed) not in self._pending:
-                self._pending[(task, seed)] = self.executor.collect(task, seed)
+                self._pending[(task, seed)] = self._collect(task, seed)
+
+    def _collect(self, task: str, seed: int) -> Pending:
+        return self.executor.collect(task, seed, self._takeover_states.get((task, seed)))
 
     def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
         """Ask the expert for a demonstration from exactly this seed's initial state (at most once a round)."""
         if seed in self._committed.get(task, set()):
             record.demos_added += 1  # committed before an interruption: its cost is in the journal
             if self.journal and seed in self.journal.demos(task):
-                record.collection_env_steps += self.journal.demos(task)[seed]["steps"]
+                entry = self.journal.demos(task)[seed]
+                record.collection_env_steps += entry["steps"]
+                record.demo_frames += entry.get("frames", 0)
+                record.corrections += entry.get("start_step") is not None
             return True
         failures = self.journal.expert_failures(task) if self.journal else {}
         if seed in failures:
             self._count_expert_failure(record, failures[seed])
             return False
-        pending = self._pending.pop((task, seed), None) or self.executor.collect(task, seed)
+        pending = self._pending.pop((task, seed), None) or self._collect(task, seed)
         result = pending.result()
         record.collection_env_steps += result.env_steps
-        if result.demonstration is not None:
-            self._journal({"type": "demo", "task": task, "seed": int(seed), "steps": result.env_steps})
-            self._appender.add(task, result.demonstration)
+        demo = result.demonstration
+        if demo is not None:
+            entry = {"type": "demo", "task": task, "seed": int(seed), "steps": result.env_steps}
+            entry["frames"] = len(demo.frames)
+            if demo.is_correction:
+                entry["start_step"] = demo.start_step
+            self._journal(entry)
+            self._appender.add(task, demo)
             self._committed.setdefault(task, set()).add(seed)
             record.demos_added += 1
+            record.demo_frames += len(demo.frames)
+            record.corrections += demo.is_correction
             return True
         entry = {
             "type": "expert_failure",
@@ -236,6 +275,8 @@ class RoundContext:
             "steps": result.env_steps,
             "initial_state": result.initial_state.tolist(),
         }
+        if self._takeover_states.get((task, seed)) is not None:
+            entry["start_step"] = result.start_step  # a correction's takeover state the expert failed from
         self._journal(entry)
         self._count_expert_failure(record, entry, count_steps=False)
         return False
@@ -245,9 +286,14 @@ class RoundContext:
         record.expert_failures += 1
         if count_steps:
             record.collection_env_steps += entry["steps"]
-        record.expert_failed_states.append(
-            {"seed": entry["seed"], "initial_state": entry["initial_state"], "attempts": entry["attempts"]}
-        )
+        failed = {
+            "seed": entry["seed"],
+            "initial_state": entry["initial_state"],
+            "attempts": entry["attempts"],
+        }
+        if "start_step" in entry:
+            failed["start_step"] = entry["start_step"]
+        record.expert_failed_states.append(failed)
 
     def collect_from_fresh_states(self, task: str, n: int, record: TaskRoundRecord) -> None:
         """n demonstrations from fresh random initial states (no evaluation): Uniform and ablation A.
@@ -306,6 +352,7 @@ class ExpansionStrategy(Protocol):
 
     name: str
     needs_policy: bool
+    collects_at_failed_states: bool  # its demonstrations answer failed evaluations (principle B)
 
     def expand_task(self, ctx: RoundContext, task: str) -> TaskRoundRecord:
         """Add this round's demonstrations for one task and account for them."""

@@ -80,6 +80,7 @@ def failure_mean(posterior: tuple[float, float]) -> float:
 class BudgetedStrategy:
     name = "budgeted"
     needs_policy = True
+    collects_at_failed_states = True  # a correction needs a failed rollout to take over
 
     def expand_round(self, ctx: RoundContext) -> list[TaskRoundRecord]:
         tasks, budget, cap = ctx.suite.tasks, ctx.budget, ctx.max_demos_per_task

@@ -23,6 +23,7 @@ def estimate_success(ctx: RoundContext, task: str, record: TaskRoundRecord) -> f
 class TaskOnlyStrategy:
     name = "task_only"
     needs_policy = True
+    collects_at_failed_states = False  # a correction needs a failed rollout to take over
 
     def expand_task(self, ctx: RoundContext, task: str) -> TaskRoundRecord:
         record = ctx.new_record(task, self.name)

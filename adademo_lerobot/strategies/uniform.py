@@ -7,6 +7,7 @@ from adademo_lerobot.strategies.base import RoundContext
 class UniformStrategy:
     name = "uniform"
     needs_policy = False
+    collects_at_failed_states = False  # a correction needs a failed rollout to take over
 
     def expand_task(self, ctx: RoundContext, task: str) -> TaskRoundRecord:
         record = ctx.new_record(task, self.name)

@@ -247,6 +247,12 @@ class AdroitTaskEnv(SuiteTaskEnv):
         self._goal_steps, self._goal_achieved = 0, False
         return restore_state(self._raw, state)
 
+    def _own_state(self) -> np.ndarray:
+        return np.array([self._goal_steps, self._goal_achieved], np.float64)
+
+    def _set_own_state(self, values: np.ndarray) -> None:
+        self._goal_steps, self._goal_achieved = int(values[0]), bool(values[1])
+
     def _raw_step(self, action: np.ndarray):
         raw, reward, _, _, info = self._raw.step(action[self.native_index])
         self._goal_achieved = bool(info.get("success", False))

@@ -18,12 +18,18 @@ from typing import Any, Protocol
 
 import draccus
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.gl import check_rendering_works
 
 OBS_TYPES = ("state", "pixels_state")
+# MuJoCo's integration state (mj_getState): time, qpos, qvel, act, warm start, ctrl, applied forces, equality
+# flags, mocap poses, userdata, plugin state: everything the next mj_step reads.
+PHYSICS_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+FULL_STATE_FORMAT = 1
+FULL_STATE_PARTS = ("initial_state", "own_state", "agent_pos", "environment_state", "physics")
 
 
 @dataclass
@@ -85,7 +91,8 @@ class TaskSuite(Protocol):
 
     def make_env(self, task: str) -> gym.Env:
         """A gymnasium env for `task` whose `reset(options={"initial_state": s})` restores `s` exactly,
-        whose `reset(seed=k)` starts from `sample_initial_state(task, k)`, and whose `info["is_success"]`
+        whose `reset(seed=k)` starts from `sample_initial_state(task, k)`, whose `get_state()` captures the whole
+        state at any step and `reset(options={"state": s})` restores it exactly, and whose `info["is_success"]`
         reports success."""
 
     def sample_initial_state(self, task: str, seed: int) -> np.ndarray:
@@ -146,7 +153,13 @@ class SuiteTaskEnv(gym.Env):
     to float32 and clipped before stepping: exactly what is stored, so stored actions replay exactly.
     `info["is_success"]` reports success; with `terminate_on_success` (evaluation) the episode ends there.
 
-    Subclasses set `self._raw` (the simulator) and implement `_restore`, `_raw_step` and `_observation`.
+    `get_state()` is the whole state at the current step (a flat float64 vector: the episode's initial state, the
+    step counter, the env's own Python-side state, the observation and MuJoCo's integration state), and
+    `reset(options={"state": s})` restores it exactly: the episode then continues as it would have. Corrections
+    start from such states (the expert takes over a failed policy rollout mid-episode).
+
+    Subclasses set `self._raw` (the simulator) and implement `_restore`, `_raw_step` and `_observation`; those
+    with Python-side state that changes during an episode implement `_own_state` / `_set_own_state`.
     """
 
     metadata = {"render_modes": ["rgb_array"]}
@@ -170,6 +183,7 @@ class SuiteTaskEnv(gym.Env):
         # repeats its final observation instead of auto-resetting and simulating steps nobody reads.
         self.hold_after_episode = False
         self._final_obs: dict | None = None
+        self._last_obs: dict | None = None
         self._steps = 0
         obs_spaces = {
             "agent_pos": gym.spaces.Box(-np.inf, np.inf, (suite.state_dim,), np.float64),
@@ -196,6 +210,13 @@ class SuiteTaskEnv(gym.Env):
     def _observation(self, raw) -> dict:
         raise NotImplementedError
 
+    def _own_state(self) -> np.ndarray:
+        """The env's Python-side state that changes during an episode (beyond what the initial state sets)."""
+        return np.zeros(0)
+
+    def _set_own_state(self, values: np.ndarray) -> None:
+        """Put back what `_own_state` captured (after the initial state and the physics are restored)."""
+
     def close(self):
         self._raw.close()
 
@@ -210,6 +231,10 @@ class SuiteTaskEnv(gym.Env):
     # -- shared episode logic -----------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        if (options or {}).get("state") is not None:
+            return self._remember(self._restore_full(np.asarray(options["state"], np.float64))), {
+                "is_success": False
+            }
         state = (options or {}).get("initial_state")
         if state is None and self.pending_initial_state is not None:
             state, self.pending_initial_state = self.pending_initial_state, None
@@ -221,7 +246,53 @@ class SuiteTaskEnv(gym.Env):
         raw = self._restore(np.asarray(state, dtype=np.float64))
         self.initial_state = np.array(state, dtype=np.float64, copy=True)
         self._steps = 0
-        return self._observation(raw), {"is_success": False}
+        return self._remember(self._observation(raw)), {"is_success": False}
+
+    def _remember(self, obs: dict) -> dict:
+        self._last_obs = obs
+        return obs
+
+    # -- the whole state at any step ----------------------------------------------------------------------
+    @property
+    def steps(self) -> int:
+        """Steps taken in the current episode."""
+        return self._steps
+
+    def get_state(self) -> np.ndarray:
+        """The whole state at this step; `reset(options={"state": s})` continues the episode exactly from it."""
+        if self.initial_state is None or self._last_obs is None:
+            raise AdaDemoError("reset the env before get_state()")
+        model, data = self._raw.model, self._raw.data
+        physics = np.empty(mujoco.mj_stateSize(model, PHYSICS_STATE))
+        mujoco.mj_getState(model, data, physics, PHYSICS_STATE)
+        parts = [
+            self.initial_state,
+            np.asarray(self._own_state(), np.float64),
+            np.asarray(self._last_obs["agent_pos"], np.float64),
+            np.asarray(self._last_obs["environment_state"], np.float64),
+            physics,
+        ]
+        header = [FULL_STATE_FORMAT, self._steps, *(p.size for p in parts)]
+        return np.concatenate([np.asarray(header, np.float64), *parts])
+
+    def _restore_full(self, state: np.ndarray) -> dict:
+        parts = split_full_state(state)
+        model, data = self._raw.model, self._raw.data
+        if parts["physics"].size != mujoco.mj_stateSize(model, PHYSICS_STATE):
+            raise AdaDemoError(
+                f"the state has {parts['physics'].size} physics values but {self.task} has "
+                f"{mujoco.mj_stateSize(model, PHYSICS_STATE)}; was it recorded for another task?"
+            )
+        self._restore(parts["initial_state"])  # the layout and the Python-side state a reset sets from it
+        mujoco.mj_setState(model, data, parts["physics"], PHYSICS_STATE)
+        mujoco.mj_forward(model, data)
+        self._set_own_state(parts["own_state"])
+        self.initial_state = parts["initial_state"].copy()
+        self._steps, self._final_obs = full_state_step(state), None
+        obs = {"agent_pos": parts["agent_pos"].copy(), "environment_state": parts["environment_state"].copy()}
+        if self._pixels:
+            obs["pixels"] = self._camera_image()
+        return obs
 
     @property
     def _holding(self) -> bool:
@@ -236,11 +307,29 @@ class SuiteTaskEnv(gym.Env):
         terminated = success and self.terminate_on_success
         truncated = self._steps >= self._max_episode_steps and not terminated
         info = {"is_success": success, "task": self.task}
-        obs = self._observation(raw)
+        obs = self._remember(self._observation(raw))
         if terminated or truncated:
             info["final_info"] = {"is_success": success, "task": self.task}
             self._final_obs = obs
         return obs, float(reward), terminated, truncated, info
+
+
+def split_full_state(state: np.ndarray) -> dict[str, np.ndarray]:
+    """The parts of a `get_state()` vector, by name (also `step`, the episode step it was taken at)."""
+    state = np.asarray(state, np.float64)
+    n = len(FULL_STATE_PARTS)
+    if state.ndim != 1 or state.size < 2 + n or int(state[0]) != FULL_STATE_FORMAT:
+        raise AdaDemoError("not a state captured by get_state() (unknown format)")
+    sizes = state[2 : 2 + n].astype(int)
+    if state.size != 2 + n + sizes.sum():
+        raise AdaDemoError(f"a get_state() vector of {state.size} values does not match its own header")
+    bounds = np.cumsum([2 + n, *sizes])
+    return {name: state[bounds[i] : bounds[i + 1]] for i, name in enumerate(FULL_STATE_PARTS)}
+
+
+def full_state_step(state: np.ndarray) -> int:
+    """The episode step a `get_state()` vector was captured at."""
+    return int(state[1])
 
 
 def cached_for_task(cache: dict, key, make: Callable[[], Any], keep: int, task_of=lambda key: key):

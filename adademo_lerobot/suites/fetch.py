@@ -127,6 +127,17 @@ class FetchTaskEnv(SuiteTaskEnv):
     def _restore(self, state: np.ndarray) -> dict:
         return restore_state(self._raw, state)
 
+    def _own_state(self) -> np.ndarray:
+        # Fetch's action moves the mocap relative to the welded body's pose of the last forward pass, one physics
+        # substep older than the state (mj_step integrates after its forward pass): keep those poses.
+        data = self._raw.data
+        return np.concatenate([data.xpos.ravel(), data.xquat.ravel()])
+
+    def _set_own_state(self, values: np.ndarray) -> None:
+        data = self._raw.data
+        data.xpos[:] = values[: data.xpos.size].reshape(data.xpos.shape)
+        data.xquat[:] = values[data.xpos.size :].reshape(data.xquat.shape)
+
     def _raw_step(self, action: np.ndarray):
         raw, reward, _, _, info = self._raw.step(action)
         return raw, reward, bool(info.get("is_success", 0.0))

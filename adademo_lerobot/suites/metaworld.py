@@ -34,6 +34,9 @@ MT10 = [
 ]  # fmt: skip
 # Raw 39-D observation: hand xyz, gripper opening, two objects (pos + quat), the previous frame, goal xyz.
 RAW_OBS_DIM = 39
+PREV_OBS_DIM = 18  # MetaWorld's frame stacking: the previous step's hand, gripper and object part
+# Task attributes MetaWorld's reward code changes during an episode (read from metaworld 3.0.0's v3 envs).
+EPISODE_ATTRIBUTES = ("pickCompleted", "placeCompleted", "reachCompleted", "_target_to_obj_init")
 PROPRIO_DIM = 4  # hand xyz + gripper opening: the robot's own state
 ACTION_DIM = 4
 FPS = 80
@@ -210,6 +213,11 @@ def restore_layout(raw_env, layout: np.ndarray) -> np.ndarray:
     return obs.astype(np.float64)
 
 
+def _encode_attribute(raw_env, name: str) -> float:
+    value = getattr(raw_env, name, None)
+    return np.nan if value is None else float(value)
+
+
 class MetaWorldTaskEnv(SuiteTaskEnv):
     """One MetaWorld task: `agent_pos` = hand xyz + gripper, `environment_state` = 39-D state + task one-hot."""
 
@@ -231,11 +239,39 @@ class MetaWorldTaskEnv(SuiteTaskEnv):
             "environment_state": np.concatenate([raw.astype(np.float64), self._onehot]),
         }
         if self._pixels:
-            image = self._raw.render()
-            if self._camera == "corner2":
-                image = np.flip(image, (0, 1))  # this camera renders upside down (as in LeRobot's env)
-            obs["pixels"] = {self._camera: np.ascontiguousarray(image)}
+            obs["pixels"] = self._camera_image()
         return obs
+
+    def _camera_image(self) -> dict:
+        image = self._raw.render()
+        if self._camera == "corner2":
+            image = np.flip(image, (0, 1))  # this camera renders upside down (as in LeRobot's env)
+        return {self._camera: np.ascontiguousarray(image)}
+
+    def _own_state(self) -> np.ndarray:
+        raw = self._raw
+        stable = raw._last_stable_obs
+        flags = [_encode_attribute(raw, name) for name in EPISODE_ATTRIBUTES]
+        return np.concatenate(
+            [
+                [raw.curr_path_length, raw._did_see_sim_exception, stable is not None, *flags],
+                raw._prev_obs,
+                np.zeros(RAW_OBS_DIM) if stable is None else stable,
+            ]
+        ).astype(np.float64)
+
+    def _set_own_state(self, values: np.ndarray) -> None:
+        raw, n = self._raw, len(EPISODE_ATTRIBUTES)
+        raw.curr_path_length = int(values[0])
+        raw._did_see_sim_exception = bool(values[1])
+        for name, value in zip(EPISODE_ATTRIBUTES, values[3 : 3 + n], strict=True):
+            if hasattr(raw, name):
+                kind = bool if name.endswith("Completed") else float
+                setattr(raw, name, None if np.isnan(value) else kind(value))
+        raw._prev_obs = values[3 + n : 3 + n + PREV_OBS_DIM].copy()
+        raw._last_stable_obs = values[3 + n + PREV_OBS_DIM :].copy() if values[2] else None
+        for site in raw._target_site_config:  # as MetaWorld's step does after simulating
+            raw._set_pos_site(*site)
 
     def render(self):
         """An RGB frame for videos (e.g. `lerobot-eval`), also for state-only envs (rendered on demand)."""
