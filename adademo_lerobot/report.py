@@ -2,7 +2,10 @@
 
 - per-task success and demos per round (Tables I/II and the appendix tables),
 - average success vs average demos per task, one curve per run (Fig. 1),
-- demo allocation per task per round, and the evaluation cost from the ledger.
+- demo allocation per task per round, and the evaluation cost from the ledger;
+- what each round cost per task (demonstrations, corrections, expert frames, evaluation episodes and steps) and
+  success against each of these, added over the rounds (a person on a robot pays in expert time and episodes,
+  not in demonstrations).
 """
 
 from __future__ import annotations
@@ -33,6 +36,27 @@ class RunResults:
     demos: pd.DataFrame  # index task, columns round -> cumulative demos after that round
     ledger: pd.DataFrame
     started_from: str = ""  # where a run that began from the user's dataset/checkpoint started
+
+    def added_cost(self) -> pd.DataFrame:
+        """Per round (rows, from 0), what the expansion rounds added up to then, per task on average."""
+        rounds = list(self.success.columns)
+        out = pd.DataFrame(0.0, index=rounds, columns=list(COSTS))
+        if len(self.ledger):
+            ledger = self.ledger.reindex(columns=[*COSTS.values(), "round"], fill_value=0)
+            per_round = ledger.groupby("round")[list(COSTS.values())].sum() / len(self.tasks)
+            per_round.columns = list(COSTS)
+            out = per_round.reindex(rounds, fill_value=0.0).cumsum()
+        out["episodes"] = out["demonstrations"] + out["evaluation episodes"]
+        return out
+
+
+# Cost measures: name -> ledger column (summed over tasks, per round).
+COSTS = {
+    "demonstrations": "demos_added",
+    "expert frames": "collection_env_steps",
+    "evaluation episodes": "eval_episodes_run",
+    "evaluation steps": "eval_env_steps",
+}
 
 
 def describe_start(begun: dict) -> str:
@@ -77,7 +101,8 @@ def load_run(run_dir: Path) -> RunResults:
     ledger = pd.DataFrame(read_ledger(dataset_root))
     if len(ledger):
         ledger = ledger[ledger["round"] > base].assign(round=lambda d: d["round"] - base)
-    label = f"{settings['strategy']} + {settings['sampler']} sampler"
+    corrections = " + takeover corrections" if settings.get("demo_start") == "takeover" else ""
+    label = f"{settings['strategy']}{corrections} + {settings['sampler']} sampler"
     return RunResults(
         run_dir.name,
         label,
@@ -110,18 +135,24 @@ def markdown_tables(run: RunResults) -> str:
         lines += [run.started_from, ""]
     lines += [table(header, rows, aligned=False)]
     if len(run.ledger):
+        ledger = run.ledger.reindex(
+            columns=[*run.ledger.columns, *({"corrections", "demo_frames"} - set(run.ledger.columns))],
+            fill_value=0,
+        )
         rows = [
             [
                 r,
                 g.strategy.iloc[0],
                 g.demos_added.sum(),
+                int(g.corrections.sum()),
                 g.eval_episodes.sum(),
                 g.eval_env_steps.sum(),
                 g.collection_env_steps.sum(),
+                int(g.demo_frames.sum()),
                 g.expert_failures.sum(),
                 int(g.cap_hit.sum()),
             ]
-            for r, g in run.ledger.groupby("round")
+            for r, g in ledger.groupby("round")
         ]
         lines += [
             "",
@@ -132,9 +163,11 @@ def markdown_tables(run: RunResults) -> str:
                     "round",
                     "strategy",
                     "demos added",
+                    "corrections",
                     "eval episodes",
                     "eval env steps",
-                    "collection env steps",
+                    "expert frames (collection env steps)",
+                    "demo frames",
                     "expert failures",
                     "tasks at CAP",
                 ],
@@ -142,8 +175,55 @@ def markdown_tables(run: RunResults) -> str:
                 aligned=False,
             ),
         ]
+        lines += cost_lines(run, ledger)
         lines += allocation_lines(run.ledger)
     return "\n".join(lines)
+
+
+def cost_lines(run: RunResults, ledger: pd.DataFrame) -> list[str]:
+    """Per round and task, what the round cost: demos (of which corrections), expert frames, evaluation."""
+    rows = [
+        [
+            r["round"],
+            r["task"],
+            r["demos_added"],
+            int(r["corrections"]),
+            r["collection_env_steps"],
+            int(r["demo_frames"]),
+            r.get("eval_episodes_run", r["eval_episodes"]),
+            r["eval_env_steps"],
+        ]
+        for _, r in ledger.iterrows()
+    ]
+    added = run.added_cost()
+    totals = [
+        [r, *(f"{added.loc[r, c]:.1f}" for c in [*COSTS, "episodes"]), _pct(run.success.loc["average", r])]
+        for r in added.index
+    ]
+    return [
+        "",
+        "Cost per round and task (expert frames: env steps under the expert's control, failed attempts "
+        "included; demo frames: the frames kept; evaluation: every policy episode the round ran):",
+        "",
+        table(
+            [
+                "round",
+                "task",
+                "demos",
+                "corrections",
+                "expert frames",
+                "demo frames",
+                "eval episodes",
+                "eval steps",
+            ],
+            rows,
+            aligned=False,
+        ),
+        "",
+        "Added per task over the rounds (episodes: demonstrations + evaluation episodes), and the average success:",
+        "",
+        table(["after round", *COSTS, "episodes", "avg SR %"], totals, aligned=False),
+    ]
 
 
 def allocation_lines(ledger: pd.DataFrame) -> list[str]:
@@ -184,6 +264,24 @@ def plot_success_vs_demos(runs: list[RunResults], path: Path) -> None:
     ax.set_title("Success vs demonstrations (paper Fig. 1)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_success_vs_cost(runs: list[RunResults], path: Path) -> None:
+    """Average success against what the rounds added per task: demonstrations, expert frames, episodes."""
+    measures = ["demonstrations", "expert frames", "episodes"]
+    fig, axes = plt.subplots(1, len(measures), figsize=(5 * len(measures), 4), sharey=True)
+    for ax, measure in zip(axes, measures, strict=True):
+        for run in runs:
+            added = run.added_cost()
+            ax.plot(added[measure], 100 * run.success.loc["average", added.index], marker="o", label=run.name)
+        ax.set_xlabel(f"added {measure} per task")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("average success rate (%)")
+    axes[-1].legend(fontsize=8)
+    fig.suptitle("Success against each cost (episodes: demonstrations + evaluation episodes)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -254,7 +352,15 @@ def write_report(run_dirs: list[Path], out_dir: Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     plot_success_vs_demos(runs, out_dir / "success_vs_demos.png")
     plot_eval_cost(runs, out_dir / "eval_cost.png")
-    sections = ["# AdaDemo report", "", "![success vs demos](success_vs_demos.png)", ""]
+    plot_success_vs_cost(runs, out_dir / "success_vs_cost.png")
+    sections = [
+        "# AdaDemo report",
+        "",
+        "![success vs demos](success_vs_demos.png)",
+        "",
+        "![success vs demonstrations, expert frames and episodes](success_vs_cost.png)",
+        "",
+    ]
     if len(runs) > 1:
         rows = [
             [

@@ -87,6 +87,60 @@ def test_restore_in_a_used_env_equals_a_fresh_env_for_50_steps(name):
 
 
 @pytest.mark.parametrize("name", ALL_SUITES)
+def test_whole_state_at_random_steps_of_random_episodes_restores_and_replays_exactly(name):
+    """`get_state()` anywhere in an episode, restored in another (used) env, continues the episode exactly:
+    observations, rewards and success, step for step. Episodes: the scripted expert with action noise where the
+    suite has one (so objects get grasped and moved), random actions otherwise."""
+    case = ALL_SUITES[name]
+    suite = make_suite(case.config(tasks=case.all_tasks if name != "metaworld" else METAWORLD_STATE_TASKS))
+    # Adroit: random actions (its scripted experts do not cover every task, nor take over mid-episode).
+    collector = None if name == "adroit" else make_collector(ScriptedCollectorConfig(), suite)
+    rng = np.random.default_rng(11)
+    for task in suite.tasks:
+        env = suite.make_env(task, terminate_on_success=False)
+        obs, _ = env.reset(seed=int(rng.integers(1000)))
+        expert = collector.expert_for(task) if collector else None
+        steps = 80
+        states, observations, actions, rewards, successes = [env.get_state()], [obs], [], [], []
+        for _ in range(steps):
+            noise = rng.normal(0, 0.3, suite.action_dim)
+            action = (expert(obs) if expert else rng.uniform(-1, 1, suite.action_dim)) + noise
+            actions.append(np.clip(action, -1, 1).astype(np.float32))
+            obs, reward, _, _, info = env.step(actions[-1])
+            states.append(env.get_state())
+            observations.append(obs)
+            rewards.append(reward)
+            successes.append(info["is_success"])
+        other = suite.make_env(task, terminate_on_success=False)
+        other.reset(seed=123)  # used: another episode first
+        for a in _actions(suite, 10):
+            other.step(a)
+        for t in sorted(rng.choice(steps, size=3, replace=False)):
+            obs, _ = other.reset(options={"state": states[t]})
+            assert other.steps == t
+            np.testing.assert_array_equal(obs["environment_state"], observations[t]["environment_state"])
+            np.testing.assert_array_equal(other.initial_state, env.initial_state)
+            for k in range(t, steps):
+                obs, reward, _, _, info = other.step(actions[k])
+                np.testing.assert_array_equal(
+                    obs["environment_state"],
+                    observations[k + 1]["environment_state"],
+                    err_msg=f"{task}: restored at step {t}, diverged at step {k}",
+                )
+                assert reward == rewards[k] and info["is_success"] == successes[k]
+    # A state of another task is refused in one line.
+    first, second = suite.tasks[0], suite.tasks[-1]
+    env = suite.make_env(second)
+    env.reset(seed=0)
+    with pytest.raises(AdaDemoError, match="another task"):
+        suite.make_env(first).reset(options={"state": env.get_state()})
+
+
+# MetaWorld tasks whose episodes change Python-side state (grasp and place flags, a lazily set margin).
+METAWORLD_STATE_TASKS = "reach-v3,pick-place-v3,bin-picking-v3,basketball-v3,door-open-v3,peg-insert-side-v3"
+
+
+@pytest.mark.parametrize("name", ALL_SUITES)
 def test_same_seed_same_initial_state_and_reset_seed_matches(name):
     suite = make_suite(ALL_SUITES[name].config(tasks=ALL_SUITES[name].all_tasks))
     for task in suite.tasks:
