@@ -31,9 +31,11 @@ SETTINGS = {
     "initial (the paper)": None,
     "disagreement 0.5 x3 -5": TakeoverArgs("disagreement", 0.5, 3, 5),
     "disagreement 1.0 x5 -5": TakeoverArgs("disagreement", 1.0, 5, 5),
-    "disagreement 0.5 x3 -20": TakeoverArgs("disagreement", 0.5, 3, 20),
+    "disagreement 1.0 x10 -5": TakeoverArgs("disagreement", 1.0, 10, 5),
+    "disagreement 1.5 x5 -5": TakeoverArgs("disagreement", 1.5, 5, 5),
     "backoff -5": TakeoverArgs("backoff", backoff=5),
-    "backoff -30": TakeoverArgs("backoff", backoff=30),
+    "backoff -20": TakeoverArgs("backoff", backoff=20),
+    "backoff -50": TakeoverArgs("backoff", backoff=50),
 }
 
 

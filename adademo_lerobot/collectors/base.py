@@ -125,7 +125,8 @@ class SimulatedExpertCollector:
         result = CollectionResult(task, np.asarray(initial_state, np.float64), seed, None, 0, 0)
         if start_state is not None:
             result.start_step = full_state_step(start_state)
-        start = {"initial_state": initial_state} if start_state is None else {"state": start_state}
+        # A correction is an episode of its own: the expert gets the whole step limit from the takeover state.
+        start = {"initial_state": initial_state} if start_state is None else {"state": start_state, "new_episode": True}
         for attempt in range(self.config.max_attempts):
             expert = self.expert_for(task)
             noise_rng = np.random.default_rng(retry_noise_seed(seed, attempt))

@@ -156,7 +156,8 @@ class SuiteTaskEnv(gym.Env):
     `get_state()` is the whole state at the current step (a flat float64 vector: the episode's initial state, the
     step counter, the env's own Python-side state, the observation and MuJoCo's integration state), and
     `reset(options={"state": s})` restores it exactly: the episode then continues as it would have. Corrections
-    start from such states (the expert takes over a failed policy rollout mid-episode).
+    start from such states (the expert takes over a failed policy rollout mid-episode), as new episodes with the
+    whole step limit ahead (`reset(options={"state": s, "new_episode": True})`).
 
     Subclasses set `self._raw` (the simulator) and implement `_restore`, `_raw_step` and `_observation`; those
     with Python-side state that changes during an episode implement `_own_state` / `_set_own_state`.
@@ -185,6 +186,7 @@ class SuiteTaskEnv(gym.Env):
         self._final_obs: dict | None = None
         self._last_obs: dict | None = None
         self._steps = 0
+        self._limit_from = 0  # the step the step limit counts from (a restored state may start a new episode)
         obs_spaces = {
             "agent_pos": gym.spaces.Box(-np.inf, np.inf, (suite.state_dim,), np.float64),
             "environment_state": gym.spaces.Box(-np.inf, np.inf, (suite.env_state_dim,), np.float64),
@@ -232,9 +234,11 @@ class SuiteTaskEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         if (options or {}).get("state") is not None:
-            return self._remember(self._restore_full(np.asarray(options["state"], np.float64))), {
-                "is_success": False
-            }
+            obs = self._restore_full(np.asarray(options["state"], np.float64))
+            # `new_episode`: the restored state starts an episode of its own, with the whole step limit ahead (a
+            # correction); otherwise the episode continues exactly, its step limit included.
+            self._limit_from = self._steps if options.get("new_episode") else 0
+            return self._remember(obs), {"is_success": False}
         state = (options or {}).get("initial_state")
         if state is None and self.pending_initial_state is not None:
             state, self.pending_initial_state = self.pending_initial_state, None
@@ -245,7 +249,7 @@ class SuiteTaskEnv(gym.Env):
             state = self._sample_state(seed if seed is not None else int(self.np_random.integers(2**62)))
         raw = self._restore(np.asarray(state, dtype=np.float64))
         self.initial_state = np.array(state, dtype=np.float64, copy=True)
-        self._steps = 0
+        self._steps = self._limit_from = 0
         return self._remember(self._observation(raw)), {"is_success": False}
 
     def _remember(self, obs: dict) -> dict:
@@ -305,7 +309,7 @@ class SuiteTaskEnv(gym.Env):
         raw, reward, success = self._raw_step(action)
         self._steps += 1
         terminated = success and self.terminate_on_success
-        truncated = self._steps >= self._max_episode_steps and not terminated
+        truncated = self._steps - self._limit_from >= self._max_episode_steps and not terminated
         info = {"is_success": success, "task": self.task}
         obs = self._remember(self._observation(raw))
         if terminated or truncated:
