@@ -10,9 +10,9 @@ import numpy as np
 
 @dataclass
 class Demonstration:
-    """A successful expert episode: LeRobot frames (observation + executed action) from exactly `initial_state`,
-    or, for a correction, from `start_state` (the whole state at step `start_step` of a failed policy rollout
-    from `initial_state`)."""
+    """A successful expert episode: LeRobot frames (observation + executed action) from exactly `start_state`,
+    the whole state it started from: `initial_state`'s at step 0, or, for a correction, the state at step
+    `start_step` of a failed policy rollout from `initial_state` (on a robot: its joint positions then)."""
 
     task: str
     initial_state: np.ndarray
@@ -20,11 +20,8 @@ class Demonstration:
     frames: list[dict]
     attempts: int
     start_step: int = 0
-    start_state: np.ndarray | None = None
-
-    @property
-    def is_correction(self) -> bool:
-        return self.start_state is not None
+    start_state: np.ndarray | None = None  # None: the initial state is all there is (a robot's joints)
+    is_correction: bool = False
 
 
 @dataclass

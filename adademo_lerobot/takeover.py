@@ -34,12 +34,14 @@ TAKEOVER_RULES = ("disagreement", "backoff")
 class TakeoverArgs:
     # disagreement | backoff (see `adademo_lerobot/takeover.py`).
     rule: str = "disagreement"
-    # disagreement: the distance between the policy's and the expert's action that counts as disagreeing.
-    threshold: float = 0.5
+    # disagreement: the distance between the policy's and the expert's action that counts as disagreeing
+    # (a policy that follows the expert stays under ~1.2 on MetaWorld; a wrong turn or grip is ~2:
+    # benchmarks/results/takeover_pilot.md).
+    threshold: float = 1.5
     # disagreement: steps in a row that must disagree.
-    consecutive: int = 3
+    consecutive: int = 5
     # Steps before the point found (the disagreement, the stall or the end) where the expert takes over.
-    backoff: int = 5
+    backoff: int = 10
     # backoff: the rollout has stalled once its observation stays within this distance of the final one.
     stall_tolerance: float = 0.01
 

@@ -53,12 +53,19 @@ CANDIDATES = (
     "peg-insert-side-v3,window-open-v3,window-close-v3,button-press-v3,coffee-button-v3,plate-slide-v3,"
     "handle-press-v3,faucet-open-v3,sweep-into-v3"
 )
+TAKEOVER = ["--demo_start=takeover", "--takeover.backoff=10"]
+DISAGREEMENT = ["--takeover.rule=disagreement", "--takeover.threshold=1.5", "--takeover.consecutive=5"]
+BACKOFF = ["--takeover.rule=backoff", "--takeover.stall_tolerance=0.01"]
 ALL_ARMS = {
     "uniform": ["--strategy=uniform", "--train.sampler=trajectory"],
     "adademo": ["--strategy=adademo", "--train.sampler=trajectory"],
     "adademo_tempered": ["--strategy=adademo", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
     "budgeted_tempered": ["--strategy=budgeted", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
     "budgeted": ["--strategy=budgeted", "--train.sampler=trajectory"],
+    # Corrections from the point of failure (--demo_start=takeover), with either rule (the default chosen here).
+    "budgeted_takeover": ["--strategy=budgeted", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
+    "adademo_takeover": ["--strategy=adademo", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
+    "budgeted_takeover_backoff": ["--strategy=budgeted", "--train.sampler=trajectory", *TAKEOVER, *BACKOFF],
 }
 ARMS = list(ALL_ARMS)  # the arms a report covers (phase_report narrows it to the finished ones)
 LABELS = {
@@ -67,6 +74,9 @@ LABELS = {
     "adademo_tempered": "AdaDemo + tempered sampler (alpha 0.5)",
     "budgeted_tempered": "Budgeted + tempered sampler (alpha 0.5)",
     "budgeted": "Budgeted + trajectory sampler",
+    "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
+    "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
+    "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
 }
 TORCH_THREADS: list[str] = []
 
@@ -472,7 +482,15 @@ def main() -> None:
         "--lr_schedule", default=None, help="noise: retrain with it (default: each run's own)"
     )
     parser.add_argument("--train_seeds", type=int, nargs="+", default=[1000, 2000], help="noise: which ones")
+    parser.add_argument(
+        "--summaries",
+        default=SUMMARIES.name,
+        help="folder under benchmarks/results for the summaries (runs of one machine, paired by seed)",
+    )
     args = parser.parse_args()
+    global SUMMARIES
+    SUMMARIES = RESULTS / args.summaries
+    SUMMARIES.mkdir(parents=True, exist_ok=True)
     if args.torch_threads is not None:
         TORCH_THREADS.append(f"--train.torch_threads={args.torch_threads}")
         os.environ["OMP_NUM_THREADS"] = str(args.torch_threads)

@@ -52,7 +52,10 @@ def main() -> None:
     checkpoint = args.run_dir / "train" / "round-0" / "checkpoints" / "last" / "pretrained_model"
     evaluator = BatchedEvaluator(suite, load_policy(checkpoint), batch_size=10)
     collector = make_collector(ScriptedCollectorConfig(), suite)
-    rows, per = [], {name: {"failures": 0, "expert_ok": 0, "steps": [], "frames": [], "rules": []} for name in SETTINGS}
+    rows, per = (
+        [],
+        {name: {"failures": 0, "expert_ok": 0, "steps": [], "frames": [], "rules": []} for name in SETTINGS},
+    )
     started = time.perf_counter()
     for task in suite.tasks:
         seeds = [expansion_state_seed(args.seed, 1, task, k) for k in range(args.episodes)]
@@ -104,13 +107,20 @@ def main() -> None:
         f"Policy: round 0 of {args.run_dir.name} (the data-efficiency recipe); states: round 1's first "
         f"{args.episodes} expansion states per task. Settings: rule threshold x consecutive -backoff.\n\n"
         "All tasks:\n\n"
-        + table(["setting", "expert finishes", "mean takeover step", "mean demo frames", "by disagreement"], totals)
+        + table(
+            ["setting", "expert finishes", "mean takeover step", "mean demo frames", "by disagreement"],
+            totals,
+        )
         + "\n\nPer task:\n\n"
-        + table(["task", "setting", "failed", "expert finishes", "mean takeover step", "mean demo frames"], rows)
+        + table(
+            ["task", "setting", "failed", "expert finishes", "mean takeover step", "mean demo frames"], rows
+        )
         + "\n"
     )
     (RESULTS / "takeover_pilot.md").write_text(text)
-    (RESULTS / "takeover_pilot.json").write_text(json.dumps({k: {**v, "rules": None} for k, v in per.items()}, default=float))
+    (RESULTS / "takeover_pilot.json").write_text(
+        json.dumps({k: {**v, "rules": None} for k, v in per.items()}, default=float)
+    )
     print(text)
 
 

@@ -126,12 +126,17 @@ class SimulatedExpertCollector:
         if start_state is not None:
             result.start_step = full_state_step(start_state)
         # A correction is an episode of its own: the expert gets the whole step limit from the takeover state.
-        start = {"initial_state": initial_state} if start_state is None else {"state": start_state, "new_episode": True}
+        start = (
+            {"initial_state": initial_state}
+            if start_state is None
+            else {"state": start_state, "new_episode": True}
+        )
         for attempt in range(self.config.max_attempts):
             expert = self.expert_for(task)
             noise_rng = np.random.default_rng(retry_noise_seed(seed, attempt))
             noise = self.config.retry_action_noise if attempt > 0 else 0.0
             obs, _ = env.reset(options=start)
+            start_vector = env.unwrapped.get_state() if start_state is None else np.asarray(start_state)
             steps_after_success = None
             while True:
                 action = np.asarray(expert(obs), dtype=np.float64)
@@ -156,7 +161,8 @@ class SimulatedExpertCollector:
                     env.frames,
                     attempt + 1,
                     result.start_step,
-                    None if start_state is None else np.asarray(start_state, np.float64),
+                    np.asarray(start_vector, np.float64),
+                    is_correction=start_state is not None,
                 )
                 return result
             result.failed_attempts += 1

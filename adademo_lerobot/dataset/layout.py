@@ -13,8 +13,9 @@ COL_ROUND = "adademo/round"
 COL_SOURCE = "adademo/source"
 COL_COLLECTOR = "adademo/collector"
 COL_SUITE = "adademo/suite"
-# Corrections (--demo_start=takeover): the step of the failed rollout where the expert took over and the whole
-# state there (`get_state()`); 0 and empty for demonstrations from the initial state.
+# The whole state an episode starts from (`get_state()`; a robot's joints) and its step: 0 for a demonstration
+# from the initial state, the step of the failed rollout where the expert took over for a correction
+# (--demo_start=takeover). Episodes that arrived without it have 0 and an empty list.
 COL_START_STEP = "adademo/start_step"
 COL_START_STATE = "adademo/start_state"
 EPISODE_COLUMNS = (

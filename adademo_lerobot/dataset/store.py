@@ -321,9 +321,11 @@ class DemoDataset:
                     COL_COLLECTOR: collector,
                     COL_SUITE: producer,
                     COL_START_STEP: int(demo.start_step),
-                    COL_START_STATE: []
-                    if demo.start_state is None
-                    else np.asarray(demo.start_state, dtype=np.float64).tolist(),
+                    # Never an empty list: LeRobot's writer would type a batch of those as list<null>, which
+                    # stock LeRobot then cannot load beside files of list<double>.
+                    COL_START_STATE: np.asarray(
+                        demo.initial_state if demo.start_state is None else demo.start_state, np.float64
+                    ).tolist(),
                 }
                 with _saving_extra_columns(dataset, columns):
                     dataset.save_episode()
