@@ -470,6 +470,7 @@ def plot(curves: dict, path: Path) -> None:
 
 
 def main() -> None:
+    global SUMMARIES
     parser = argparse.ArgumentParser()
     parser.add_argument("phase", choices=["select", "noise", "arms", "export", "report"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -488,7 +489,6 @@ def main() -> None:
         help="folder under benchmarks/results for the summaries (runs of one machine, paired by seed)",
     )
     args = parser.parse_args()
-    global SUMMARIES
     SUMMARIES = RESULTS / args.summaries
     SUMMARIES.mkdir(parents=True, exist_ok=True)
     if args.torch_threads is not None:
