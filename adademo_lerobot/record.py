@@ -10,11 +10,15 @@ For every task of the dataset (or `--tasks`), until E successes or CAP demonstra
   3. after a failure the person puts the scene back as it was when that episode started (its first camera frame is
      saved to look at, its initial joint positions are printed) and teleoperates a demonstration from there, which
      is appended to the dataset with its provenance (n keeps it, r records it again).
+With `--demo_start=takeover` the person may instead take over while the policy goes wrong (t, or the
+teleoperator's intervention event): the policy episode counts as a failure and the person's correction is recorded
+from that moment, with the robot's joint positions then as its start state (no scene to set up again). A failure
+the person did not take over is answered as above.
 Before the first episode, a plan from each task's latest success rate (the paper's N_k = E/SR_k - E) says how many
 demonstrations each task will likely need and how long that takes at the dataset's episode length (principle A).
 
 Keys (LeRobot's key listener, as in lerobot-record): n or Right = next, r or Left = redo, s = success,
-f = failure, q or Esc = stop. A simulated robot (`adademo_sim`) sets its scenes itself, and a teleoperator that
+f = failure, t = take over (with --demo_start=takeover), q or Esc = stop. A simulated robot (`adademo_sim`) sets its scenes itself, and a teleoperator that
 reports LeRobot's teleop events (`adademo_scripted`) answers for the person.
 
 The round is journaled as adademo-expand's: every policy episode (success, length, initial joints, first frames)
@@ -34,7 +38,7 @@ import numpy as np
 
 from adademo_lerobot.configs import PolicyPathArgs, lerobot_choice
 from adademo_lerobot.dataset.check import check_dataset_integrity
-from adademo_lerobot.dataset.layout import ADADEMO_DIR
+from adademo_lerobot.dataset.layout import ADADEMO_DIR, CORRECTION_SOURCE
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata, read_info
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
@@ -45,10 +49,11 @@ from adademo_lerobot.records import Demonstration, TaskRoundRecord
 from adademo_lerobot.seeds import derive_seed
 from adademo_lerobot.strategies.budgeted import failure_mean, prior_from_earlier_rounds
 from adademo_lerobot.tables import table
+from adademo_lerobot.takeover import DEMO_STARTS
 
 JUDGES = ("auto", "keys", "teleop")
 SOURCE = "human"
-KEYS_HELP = "n/Right = next, r/Left = redo, s = success, f = failure, q/Esc = stop"
+KEYS_HELP = "n/Right = next, r/Left = redo, s = success, f = failure, t = take over, q/Esc = stop"
 
 
 @dataclass
@@ -82,6 +87,11 @@ class RecordConfig:
     # Who marks success and ends episodes: `keys` (the person), `teleop` (the teleoperator's events, e.g.
     # adademo_scripted), `auto` (teleop if it reports events, else keys).
     judge: str = "auto"
+    # `initial`: a failure is answered by a demonstration from the failed episode's start (the paper);
+    # `takeover`: the person may take over while the policy goes wrong (t, or the teleoperator's intervention
+    # event) and the correction is recorded from there. Hold the leader arm where the follower is before taking
+    # over (the follower moves to the leader's pose at once).
+    demo_start: str = "initial"
     seed: int = 0
     device: str = "cpu"
 
@@ -109,6 +119,10 @@ class RecordConfig:
             raise AdaDemoError(f"--dataset.episode_time_s must be > 0, got {self.dataset.episode_time_s}")
         if self.judge not in JUDGES:
             raise AdaDemoError(f"--judge must be one of {', '.join(JUDGES)}, got {self.judge!r}")
+        if self.demo_start not in DEMO_STARTS:
+            raise AdaDemoError(
+                f"unknown --demo_start={self.demo_start!r}; choose one of {', '.join(DEMO_STARTS)}"
+            )
 
 
 class StopRecording(Exception):  # noqa: N818  (a request, not an error)
@@ -130,8 +144,11 @@ class KeyboardPerson:
                 "(--judge=teleop)"
             )
 
+        self._pressed: set[str] = set()  # keys read while an episode runs, not yet asked for
+
     def _wait(self, prompt: str, answers: dict[str, object]):
         print(f"{prompt}  [{KEYS_HELP}]", flush=True)
+        self._pressed.clear()
         while True:
             key = self.keys.get().lower()
             if key in ("q", "esc"):
@@ -142,14 +159,21 @@ class KeyboardPerson:
     def ready(self, prompt: str) -> None:
         self._wait(prompt, {"n": True, "right": True, "enter": True})
 
-    def episode_over(self) -> bool:
-        over = False
+    def _pressed_during_episode(self, *names: str) -> bool:
         while not self.keys.empty():
             key = self.keys.get_nowait().lower()
             if key in ("q", "esc"):
                 raise StopRecording
-            over |= key in ("n", "right")
-        return over
+            self._pressed.add("n" if key == "right" else key)
+        found = bool(self._pressed & set(names))
+        self._pressed -= set(names)
+        return found
+
+    def episode_over(self) -> bool:
+        return self._pressed_during_episode("n")
+
+    def takes_over(self) -> bool:
+        return self._pressed_during_episode("t")
 
     def judge(self, task: str) -> bool:
         return self._wait(f"{task}: did the policy succeed? (s / f)", {"s": True, "f": False})
@@ -180,6 +204,9 @@ class TeleopPerson:
 
     def episode_over(self) -> bool:
         return self._events()["terminate_episode"]
+
+    def takes_over(self) -> bool:
+        return self._events()["is_intervention"]
 
     def judge(self, task: str) -> bool:
         return self._events()["success"]
@@ -331,12 +358,16 @@ class Session:
         import torch
 
         device = torch.device(self.cfg.device)
-        start, first, steps = time.perf_counter(), None, 0
+        start, first, steps, taken_over = time.perf_counter(), None, 0, None
+        may_take_over = self.cfg.demo_start == "takeover"
         while steps < self.max_steps:
             step_start = time.perf_counter()
             obs = self.robot.get_observation()
             if first is None:
                 first = obs
+            if may_take_over and self.person.takes_over():
+                taken_over = obs  # the person has the robot from here on: the policy failed
+                break
             frame = self._frame(self.features, obs, self._obs)
             values = self._predict(
                 frame, loaded.policy, device, loaded.preprocessor, loaded.postprocessor, False, task,
@@ -347,17 +378,61 @@ class Session:
             if self.person.episode_over():
                 break
             self._pace(step_start)
-        success = bool(self.person.judge(task))
-        return {
+        entry = {
             "type": "eval",
             "task": task,
             "seed": seed,
-            "success": success,
+            "success": taken_over is None and bool(self.person.judge(task)),
             "steps": steps,
             "initial_state": self._joints(first),
             "first_frames": self._save_first_frames(first, task, seed),
             "seconds": round(time.perf_counter() - start, 3),
         }
+        if taken_over is not None:
+            entry |= {
+                "takeover_step": steps,
+                "takeover_rule": "person",
+                "takeover_state": self._joints(taken_over),
+            }
+        return entry
+
+    def _teleoperate(self) -> tuple[list[dict], dict]:
+        """The person drives the robot from where it is until they end the episode: (frames, first observation)."""
+        frames_out, first = [], None
+        while len(frames_out) < self.max_steps:
+            step_start = time.perf_counter()
+            obs = self.robot.get_observation()
+            first = first or obs
+            sent = self.robot.send_action(self.teleop.get_action())
+            frames_out.append(
+                {
+                    **self._frame(self.features, obs, self._obs),
+                    **self._frame(self.features, sent, self._action),
+                }
+            )
+            if self.person.episode_over():
+                break
+            self._pace(step_start)
+        return frames_out, first
+
+    def correction(self, task: str, failed: dict) -> tuple[Demonstration | None, float]:
+        """The person's correction from where they took over the policy (the robot is still there): one attempt,
+        since the scene cannot be put back mid-episode; a rejected one leaves the failure unanswered."""
+        start = time.perf_counter()
+        frames_out, _ = self._teleoperate()
+        if not self.person.keep_demo(task):
+            return None, time.perf_counter() - start
+        demo = Demonstration(
+            task,
+            np.asarray(failed["initial_state"], np.float64),
+            failed["seed"],
+            frames_out,
+            1,
+            start_step=failed["takeover_step"],
+            start_state=np.asarray(failed["takeover_state"], np.float64),
+            is_correction=True,
+        )
+        return demo, time.perf_counter() - start
 
     def demonstration(self, task: str, failed: dict) -> tuple[Demonstration | None, int, float]:
         """The person's demonstration from the failed episode's start: (demo or None after every attempt gave
@@ -376,21 +451,7 @@ class Session:
                     f"({'first frame: ' + frames + '; ' if frames else ''}joints: {joints}), press n, then "
                     "teleoperate the task; press n when done"
                 )
-            frames_out, first = [], None
-            while len(frames_out) < self.max_steps:
-                step_start = time.perf_counter()
-                obs = self.robot.get_observation()
-                first = first or obs
-                sent = self.robot.send_action(self.teleop.get_action())
-                frames_out.append(
-                    {
-                        **self._frame(self.features, obs, self._obs),
-                        **self._frame(self.features, sent, self._action),
-                    }
-                )
-                if self.person.episode_over():
-                    break
-                self._pace(step_start)
+            frames_out, first = self._teleoperate()
             if self.person.keep_demo(task):
                 demo = Demonstration(
                     task, np.asarray(self._joints(first)), failed["seed"], frames_out, attempt
@@ -421,11 +482,21 @@ class Session:
             if successes >= target or len(journal.demos(task)) >= cap or len(evals) >= max_evals:
                 break
             seed = derive_seed(cfg.seed, self.round_index, task, len(evals))
-            journal.append(self.policy_episode(task, seed))
+            episode = self.policy_episode(task, seed)
+            journal.append(episode)  # first: a stop during the correction leaves a failure to answer
+            if "takeover_step" in episode:
+                demo, seconds = self.correction(task, episode)
+                self._store_answer(task, episode, demo, 1, seconds)
         return self._record(task, max_evals)
 
     def _answer(self, task: str, failed: dict) -> None:
-        demo, attempts, seconds = self.demonstration(task, failed)
+        """Answer a failure with a demonstration from the failed episode's start (also a failure whose correction
+        a stop interrupted: the robot is no longer where the person took over)."""
+        self._store_answer(task, failed, *self.demonstration(task, failed))
+
+    def _store_answer(
+        self, task: str, failed: dict, demo: Demonstration | None, attempts: int, seconds: float
+    ) -> None:
         if demo is None:
             self.journal.append(
                 {"type": "expert_failure", "task": task, "seed": failed["seed"], "attempts": attempts}
@@ -434,15 +505,10 @@ class Session:
         self.dataset.append_recorded(
             self.robot.robot_type, [demo], self.round_index, SOURCE, self.cfg.teleop.type
         )
-        self.journal.append(
-            {
-                "type": "demo",
-                "task": task,
-                "seed": demo.seed,
-                "steps": len(demo.frames),
-                "seconds": round(seconds, 3),
-            }
-        )
+        entry = {"type": "demo", "task": task, "seed": demo.seed, "steps": len(demo.frames)}
+        if demo.is_correction:
+            entry["start_step"] = demo.start_step
+        self.journal.append({**entry, "seconds": round(seconds, 3)})
 
     def _recover_demos(self, task: str) -> None:
         """A stop between a demonstration's append and its journal entry: the dataset has it, so journal it."""
@@ -450,13 +516,26 @@ class Session:
         mine = eps[
             (eps.task == task)
             & (eps["adademo/round"] == self.round_index)
-            & (eps["adademo/source"] == SOURCE)
+            & eps["adademo/source"].isin([SOURCE, CORRECTION_SOURCE])
         ]
-        for seed, length in zip(mine["adademo/seed"], mine["length"], strict=True):
+        for seed, length, source, step in zip(
+            mine["adademo/seed"],
+            mine["length"],
+            mine["adademo/source"],
+            mine["adademo/start_step"],
+            strict=True,
+        ):
             if int(seed) not in self.journal.demos(task):
-                self.journal.append(
-                    {"type": "demo", "task": task, "seed": int(seed), "steps": int(length), "seconds": 0.0}
-                )
+                entry = {
+                    "type": "demo",
+                    "task": task,
+                    "seed": int(seed),
+                    "steps": int(length),
+                    "seconds": 0.0,
+                }
+                if source == CORRECTION_SOURCE:
+                    entry["start_step"] = int(step)
+                self.journal.append(entry)
 
     def _record(self, task: str, max_evals: int) -> TaskRoundRecord:
         cfg, journal = self.cfg, self.journal
@@ -478,6 +557,8 @@ class Session:
             successes=successes,
             failures=len(evals) - successes,
             demos_added=len(demos),
+            corrections=sum("start_step" in d for d in demos),
+            demo_frames=sum(d["steps"] for d in demos),
             expert_failures=len(journal.expert_failures(task)),
             cap_hit=len(demos) >= cfg.max_demos_per_task,
             eval_bound_hit=len(evals) >= max_evals and successes < cfg.target_successes,
@@ -542,6 +623,7 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
                     "robot": robot.robot_type,
                     "teleop": cfg.teleop.type,
                     "seed": cfg.seed,
+                    **({"demo_start": cfg.demo_start} if cfg.demo_start != "initial" else {}),
                 }
             )
             records = [session.run_task(task) for task in tasks]

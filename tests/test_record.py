@@ -157,6 +157,47 @@ def test_a_round_with_a_person_in_the_loop_stopped_then_resumed(recorded, tmp_pa
     assert not journal.exists()  # the round is finished: its journal is archived with the evaluations
 
 
+@requires_rendering
+def test_the_person_takes_over_where_the_policy_goes_wrong(recorded, tmp_path):
+    """--demo_start=takeover: the scripted person watches the policy, takes over once it goes where the expert would
+    not, and the correction is recorded from that moment: two rounds, each starting from the last."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    source, checkpoint = recorded
+    root = tmp_path / "dataset"
+    subprocess.run(["cp", "-r", str(source), str(root)], check=True)
+    # The scripted person takes over after 5 steps of disagreement by more than 0.5 (a watchful person).
+    takeover = ["--demo_start=takeover", "--teleop.takeover_threshold=0.5", "--dataset.episode_time_s=3"]
+    args = record_args(root, checkpoint, *takeover)
+    for round_index in (1, 2):
+        run_cli("adademo-record", *args)
+        evaluations = {
+            (e["task"], e["seed"]): e
+            for e in read_round_evaluations(root, round_index)
+            if e["type"] == "eval"
+        }
+        eps = read_episode_metadata(root)
+        new = eps[eps["adademo/round"] == round_index]
+        assert len(new) > 0 and set(new["adademo/source"]) == {"correction"}
+        stock = LeRobotDataset("local/robot", root=root, video_backend="pyav")
+        for index, row in new.iterrows():
+            failed = evaluations[(row.task, row["adademo/seed"])]  # the policy episode the person took over
+            assert failed["success"] is False and failed["takeover_rule"] == "person"
+            # The takeover came after the scripted person saw 5 disagreeing steps, and the correction starts there.
+            assert row["adademo/start_step"] == failed["takeover_step"] == failed["steps"] >= 5
+            np.testing.assert_allclose(row["adademo/start_state"], failed["takeover_state"])
+            np.testing.assert_allclose(row["adademo/initial_state"], failed["initial_state"])
+            first = stock[int(stock.meta.episodes[index]["dataset_from_index"])]
+            np.testing.assert_allclose(
+                first["observation.state"].numpy(), failed["takeover_state"], atol=1e-6
+            )
+        for r in (r for r in read_ledger(root) if r["round"] == round_index):
+            mine = new[new.task == r["task"]]
+            assert r["corrections"] == r["demos_added"] == len(mine)
+            assert r["demo_frames"] == int(mine["length"].sum())
+            assert r["extra"]["person_seconds"]["demonstrations"] > 0
+
+
 @pytest.mark.slow
 @requires_rendering
 def test_bad_input_gets_one_error_and_no_change(recorded, reach_push_dataset, act_run, tmp_path):
@@ -189,5 +230,8 @@ def test_bad_input_gets_one_error_and_no_change(recorded, reach_push_dataset, ac
     )
     assert_cli_error(
         "adademo-record", *record_args(root, checkpoint, "--tasks=fly-v3"), match="not in the dataset"
+    )
+    assert_cli_error(
+        "adademo-record", *record_args(root, checkpoint, "--demo_start=later"), match="unknown --demo_start"
     )
     assert file_digests(root) == before

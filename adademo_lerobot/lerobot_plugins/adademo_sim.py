@@ -66,6 +66,10 @@ class AdademoSim(Simulated, Robot):
         self.scene_seed: int | None = None
         self.success = False
         self.steps_since_success = 0
+        # What the last action was taken in and what it was (a watching person compares it with their own), and
+        # how many steps the current scene has had.
+        self.last_step: tuple[dict, np.ndarray] | None = None
+        self.scene_steps = 0
 
     @cached_property
     def observation_features(self) -> dict:
@@ -128,6 +132,7 @@ class AdademoSim(Simulated, Robot):
         state = self._suite.sample_initial_state(self.task, seed)
         self._obs, _ = self._env().reset(options={"initial_state": state})
         self.scene_seed, self.success, self.steps_since_success = seed, False, 0
+        self.last_step, self.scene_steps = None, 0
         return seed
 
     @property
@@ -149,6 +154,8 @@ class AdademoSim(Simulated, Robot):
         if not self.is_connected:
             raise DeviceNotConnectedError(f"{self} is not connected")
         command = np.clip(np.array([float(action[k]) for k in ACTIONS], dtype=np.float32), -1.0, 1.0)
+        self.last_step = (self._obs, command)
+        self.scene_steps += 1
         self._obs, _, _, _, info = self._env().step(command)
         if self.success or info["is_success"]:
             self.steps_since_success += self.success
