@@ -138,6 +138,16 @@ def test_ray_gives_the_same_round_as_local(reach_push_dataset, ckpt, ray_address
         run_cli("adademo-expand", *expand_args(remote, ckpt), *strategy, *ray_flags(ray_address))
     same_round(local, remote, 3)
 
+    # Corrections: the takeover is chosen on the worker that ran the rollout, the correction on any worker.
+    takeover = ["--strategy=budgeted", "--target_successes=null", "--budget=4", "--demo_start=takeover"]
+    run_cli("adademo-expand", *expand_args(local, ckpt), *takeover)
+    run_cli("adademo-expand", *expand_args(remote, ckpt), *takeover, *ray_flags(ray_address))
+    same_round(local, remote, 4)
+    ea, eb = read_episode_metadata(local), read_episode_metadata(remote)
+    assert (ea[ea["adademo/round"] == 4]["adademo/source"] == "correction").all()
+    for sa, sb in zip(ea["adademo/start_state"], eb["adademo/start_state"], strict=True):
+        np.testing.assert_array_equal(sa, sb)
+
 
 @pytest.mark.slow
 def test_fixed_set_evaluation_and_collection_are_the_same_with_any_number_of_workers(

@@ -164,7 +164,8 @@ def test_second_round_follows_the_first(dataset, ckpt):
     check_ledger_agrees(dataset, 2)
 
 
-def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, ckpt):
+@pytest.mark.parametrize("demo_start", ["initial", "takeover"])
+def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, ckpt, demo_start):
     args = [
         "--dataset.repo_id=local/demo",
         f"--dataset.root={dataset}",
@@ -174,6 +175,7 @@ def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, 
         "--max_demos_per_task=6",
         "--commit_every=1",
         "--eval.batch_size=2",
+        f"--demo_start={demo_start}",
     ]
     episodes_dir = dataset / "meta" / "episodes"
     files_before = len(list(episodes_dir.rglob("*.parquet")))
@@ -205,6 +207,13 @@ def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, 
     assert all(
         evaluations[(t, s)]["success"] is False for t, s in zip(new.task, new["adademo/seed"], strict=True)
     )
+    if demo_start == "takeover":  # the resumed round took over where the journaled rollouts said
+        for _, row in new.iterrows():
+            failed = evaluations[(row.task, row["adademo/seed"])]
+            assert (
+                row["adademo/source"] == "correction" and row["adademo/start_step"] == failed["takeover_step"]
+            )
+            np.testing.assert_array_equal(row["adademo/start_state"], failed["takeover_state"])
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     assert LeRobotDataset("local/demo", root=dataset).num_episodes == len(eps)
