@@ -40,8 +40,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
 from _common import BIN, RESULTS, ROOT, machine_line
 
 from adademo_lerobot.tables import table
@@ -67,7 +65,6 @@ ALL_ARMS = {
     "adademo_takeover": ["--strategy=adademo", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
     "budgeted_takeover_backoff": ["--strategy=budgeted", "--train.sampler=trajectory", *TAKEOVER, *BACKOFF],
 }
-ARMS = list(ALL_ARMS)  # the arms a report covers (phase_report narrows it to the finished ones)
 LABELS = {
     "uniform": "Uniform",
     "adademo": "AdaDemo (paper: E from the budget, trajectory sampler)",
@@ -245,11 +242,14 @@ def write_summary_table(name: str, text: str) -> None:
 def export_run(out: Path, seed: int, arm: str) -> Path:
     """A finished arm's figures, small enough to commit: success and demos per task and round, the ledger (without
     machine paths and expert-failed states), the run's settings and the machine."""
+    from adademo_lerobot.dataset.metadata import read_episode_metadata
     from adademo_lerobot.files import atomic_write_text
     from adademo_lerobot.ledger import read_ledger
     from adademo_lerobot.report import load_run
 
     run_dir = out / f"seed{seed}" / arm
+    eps = read_episode_metadata(run_dir / "dataset")
+    eps = eps[eps["adademo/round"] > 0]
     run = load_run(run_dir)
     settings = json.loads((run_dir / "run_state.json").read_text())["settings"]
     summary = {
@@ -264,6 +264,18 @@ def export_run(out: Path, seed: int, arm: str) -> Path:
         "ledger": [
             {k: v for k, v in row.items() if k not in ("policy_path", "expert_failed_states")}
             for row in read_ledger(run_dir / "dataset")
+        ],
+        # The expansion rounds' episodes: where each started (a correction's takeover step) and its length.
+        "episodes": [
+            {"task": t, "round": int(r), "source": src, "start_step": int(step), "length": int(n)}
+            for t, r, src, step, n in zip(
+                eps.task,
+                eps["adademo/round"],
+                eps["adademo/source"],
+                eps["adademo/start_step"],
+                eps["length"],
+                strict=True,
+            )
         ],
     }
     path = SUMMARIES / f"seed{seed}-{arm}.json"
@@ -290,183 +302,44 @@ def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
             export_run(out, seed, arm)
 
 
-def demos_to_reach(x: np.ndarray, y: np.ndarray, target: float) -> float | None:
-    """Added demos per task at which the curve (x, y) first reaches `target`, interpolated linearly."""
-    if y[0] >= target:
-        return float(x[0])
-    for k in range(1, len(x)):
-        if y[k] >= target:
-            return float(x[k - 1] + (target - y[k - 1]) / (y[k] - y[k - 1]) * (x[k] - x[k - 1]))
-    return None
-
-
-def arm_table(column: str, cell) -> str:
-    """One row per arm, one column per round 0-3."""
-    headers = ["arm", *(f"{column} {r}" for r in range(4))]
-    return table(headers, [[LABELS[arm], *(cell(arm, r) for r in range(4))] for arm in ARMS], aligned=False)
-
-
-def load_summaries(seeds: list[int]) -> dict[tuple[str, int], dict]:
-    runs = {}
-    for arm in ALL_ARMS:
-        for s in seeds:
-            path = SUMMARIES / f"seed{s}-{arm}.json"
-            if path.exists():
-                runs[(arm, s)] = json.loads(path.read_text())
-    task_sets = {tuple(run["tasks"]) for run in runs.values()}
-    if len(task_sets) > 1:
-        sys.exit(f"the summaries in {SUMMARIES} are of different task sets: {sorted(task_sets)}")
-    return runs
-
-
 def phase_report(seeds: list[int], arms: list[str]) -> None:
-    runs = load_summaries(seeds)
-    # The tables cover the seeds where every reported arm reached round 3; the headlines compare each arm with
-    # Uniform over every seed where both did (a benchmark in progress reports those), always paired.
-    arm_seeds = {arm: [s for s in seeds if (arm, s) in runs and ("uniform", s) in runs] for arm in ALL_ARMS}
-    ARMS[:] = [arm for arm in ALL_ARMS if arm in {"uniform", *arms} and arm_seeds[arm]]
-    if len(ARMS) < 2:
-        sys.exit(f"no seed has Uniform and another arm through round 3 yet (summaries: {SUMMARIES})")
-    common = [s for s in seeds if all((arm, s) in runs for arm in ARMS)]
-    if not common:
-        sys.exit(
-            f"no seed has every arm ({', '.join(ARMS)}) through round 3 yet: finish one, or pass fewer --seeds"
-        )
-    tasks = runs[("uniform", arm_seeds["uniform"][0])]["tasks"]
+    """benchmarks/results/<summaries>.md (and .png) from the committed summaries of `--summaries`."""
+    from efficiency_report import write_report
 
-    def stacked(arm: str, field: str, over: list[int]) -> np.ndarray:  # seed x task x round
-        return np.array([[runs[(arm, s)][field][t] for t in tasks] for s in over], dtype=float)
-
-    def added_per_task(demos: np.ndarray) -> np.ndarray:  # by round, mean over tasks and seeds
-        return (demos - demos[:, :, :1]).mean(axis=1).mean(axis=0)
-
-    sr = {arm: stacked(arm, "success", common) for arm in ARMS}
-    demos = {arm: stacked(arm, "demos", common) for arm in ARMS}
-    added = {arm: added_per_task(demos[arm]) for arm in ARMS}
-    avg = {arm: sr[arm].mean(axis=1) for arm in ARMS}  # seed x round
-    episodes = {}  # demos + evaluation episodes (all run, speculative ones included), per task, cumulative
-    for arm in ARMS:
-        totals = []
-        for s in common:
-            ledger = pd.DataFrame(runs[(arm, s)]["ledger"])
-            per_round = [
-                (
-                    ledger[ledger["round"] == r].demos_added.sum()
-                    + ledger[ledger["round"] == r].eval_episodes_run.sum()
-                )
-                / len(tasks)
-                for r in (1, 2, 3)
-            ]
-            totals.append(np.cumsum([0, *per_round]))
-        episodes[arm] = np.mean(totals, axis=0)
-    machines = sorted({runs[key]["machine"].split("; machine: ")[-1] for key in runs})
-
-    lines = [
-        "# Data efficiency on MetaWorld: Uniform, AdaDemo, AdaDemo + tempered sampler, budgeted",
-        "",
-        "Command: `python benchmarks/data_efficiency.py arms --seeds S.. --arms A..` (which arms ran on which seeds: "
-        f"the headlines), then `report --seeds {' '.join(map(str, seeds))}`; "
-        f"report {machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary "
-        f"under `results/data_efficiency/`).",
-        f"Tables: seeds {', '.join(map(str, common))}, where every arm below reached round 3. Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}); arms differ only "
-        "in strategy and sampler (see the script's docstring). Success on the same 50 fixed initial states per task "
-        "every round; mean ± std over seeds; in brackets the demos per task after the round.",
-        "",
-        arm_table(
-            "round",
-            lambda arm, r: (
-                f"{100 * avg[arm][:, r].mean():.1f} ± {100 * avg[arm][:, r].std():.1f} "
-                f"({demos[arm].mean(axis=(0, 1))[r]:.1f})"
-            ),
-        ),
-    ]
-    lines += [
-        "",
-        "Per task, round 3 (mean over seeds) and the paired difference to Uniform (same seed, same task):",
-        "",
-        "| task | " + " | ".join(LABELS[a].split(" (")[0] for a in ARMS) + " |",
-        "| --- |" + " --- |" * len(ARMS),
-    ]
-    for t, task in enumerate(tasks):
-        cells = [f"{100 * sr['uniform'][:, t, 3].mean():.0f}"]
-        cells += [
-            f"{100 * sr[a][:, t, 3].mean():.0f} ({100 * (sr[a][:, t, 3] - sr['uniform'][:, t, 3]).mean():+.0f})"
-            for a in ARMS
-            if a != "uniform"
-        ]
-        lines.append(f"| {task} | " + " | ".join(cells) + " |")
-    compared = [arm for arm in ARMS if arm != "uniform"]
-    lines += [
-        "",
-        "## Headlines",
-        "",
-        "Each arm against Uniform over every seed where both reached round 3: "
-        + "; ".join(f"{arm} seeds {', '.join(map(str, arm_seeds[arm]))}" for arm in compared)
-        + ".",
-        "",
-    ]
-    own_avg = {arm: stacked(arm, "success", arm_seeds[arm]).mean(axis=1) for arm in compared}
-    own_added = {arm: added_per_task(stacked(arm, "demos", arm_seeds[arm])) for arm in compared}
-    uniform_avg = {arm: stacked("uniform", "success", arm_seeds[arm]).mean(axis=1) for arm in compared}
-    uniform_added = {arm: added_per_task(stacked("uniform", "demos", arm_seeds[arm])) for arm in compared}
-    paired = {arm: 100 * (own_avg[arm][:, 3] - uniform_avg[arm][:, 3]) for arm in compared}
-    most_seeds = max(len(arm_seeds[a]) for a in compared)  # an arm with fewer seeds is not yet a candidate
-    best = max((a for a in compared if len(arm_seeds[a]) == most_seeds), key=lambda a: paired[a].mean())
-    for arm in compared:
-        uniform_final = uniform_avg[arm][:, 3].mean()
-        reached = demos_to_reach(own_added[arm], own_avg[arm].mean(axis=0), uniform_final)
-        ratio = (
-            f"reached with **{reached / uniform_added[arm][3]:.2f}x** of Uniform's added demos"
-            if reached is not None
-            else "**not reached** in 3 rounds"
-        )
-        lines.append(
-            f"- {LABELS[arm]}: round 3 {100 * own_avg[arm][:, 3].mean():.1f} % vs Uniform "
-            f"{100 * uniform_final:.1f} %: **{paired[arm].mean():+.1f} points** (paired per seed: "
-            f"{', '.join(f'{p:+.1f}' for p in paired[arm])}), {own_added[arm][3]:.1f} vs {uniform_added[arm][3]:.1f} "
-            f"added demos per task; Uniform's final average {ratio}."
-        )
-    lines += [
-        "",
-        f"Goal: the best arm ({LABELS[best]}) >= Uniform + 5 points after round 3; Uniform's final average "
-        "with <= 1/3 of its added demos.",
-        "",
-        "Success against every episode spent per task (demonstrations + evaluation episodes, the cost the paper "
-        "leaves out), cumulative over rounds 1-3:",
-        "",
-        arm_table(
-            "after round", lambda arm, r: f"{100 * avg[arm][:, r].mean():.1f} % @ {episodes[arm][r]:.1f}"
-        ),
-    ]
-    plot(
-        {arm: (added[arm], avg[arm].mean(axis=0), avg[arm].std(axis=0)) for arm in ARMS},
-        RESULTS / "data_efficiency.png",
+    machines = sorted(
+        {
+            json.loads(p.read_text())["machine"].split("; machine: ")[-1]
+            for p in SUMMARIES.glob("seed*-*.json")
+        }
     )
-    for path in [*sorted(SUMMARIES.glob("select*.md")), *sorted(SUMMARIES.glob("noise*.md"))]:
-        lines += ["", f"## {path.stem}", "", path.read_text()]
-    lines += ["", "![success vs added demos](data_efficiency.png)"]
-    results = RESULTS / "data_efficiency.md"
-    # The analysis is written by hand under "## Reading" at the end; a new report keeps it (to be revised).
-    reading = results.read_text().partition("\n## Reading")[2] if results.exists() else ""
-    results.write_text("\n".join(lines) + "\n" + (f"\n## Reading{reading}" if reading else ""))
-    print("\n".join(lines))
+    tasks = json.loads(next(SUMMARIES.glob("seed*-*.json")).read_text())["tasks"]
+    header = [
+        f"Command: `python benchmarks/data_efficiency.py arms --seeds S.. --arms A.. --summaries {SUMMARIES.name}` "
+        f"(two drivers, `--torch_threads 1`), then `report --summaries {SUMMARIES.name}`; report "
+        f"{machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary under "
+        f"`results/{SUMMARIES.name}/`). Runs of one machine only: trained policies differ across CPUs, so seeds "
+        "are paired only within a folder.",
+        f"Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}): per seed every arm branches from one shared "
+        "round 0 (dataset, policy, evaluation), trains each round from scratch with the same training seed, and is "
+        "evaluated on the same fixed initial states; arms differ only in the flags of the script's `ALL_ARMS`.",
+    ]
+    labels = {arm: LABELS[arm] for arm in ALL_ARMS if arm in {"uniform", *arms}}
+    out = RESULTS / f"{SUMMARIES.name}.md"
+    write_report(SUMMARIES, labels, TITLES.get(SUMMARIES.name, "Data efficiency"), header, TAKEOVER_ARMS, out)
+    extra = [*sorted(SUMMARIES.glob("select*.md")), *sorted(SUMMARIES.glob("noise*.md"))]
+    if extra:  # the tables `select` and `noise` wrote, before the hand-written reading
+        text = out.read_text()
+        body, sep, reading = text.partition("\n## Reading")
+        body += "".join(f"\n## {path.stem}\n\n{path.read_text()}" for path in extra)
+        out.write_text(body + sep + reading)
+    print(out.read_text())
 
 
-def plot(curves: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    for arm, (x, y, e) in curves.items():
-        ax.errorbar(x, 100 * y, yerr=100 * e, marker="o", capsize=3, label=LABELS[arm])
-    ax.set_xlabel("demos added per task (after the shared round 0)")
-    ax.set_ylabel("average success rate (%)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+TITLES = {
+    "data_efficiency": "Data efficiency on MetaWorld: Uniform, AdaDemo, AdaDemo + tempered sampler, budgeted",
+    "corrections": "Corrections from the point of failure on MetaWorld: takeover arms against Uniform and budgeted",
+}
+TAKEOVER_ARMS = {"budgeted_takeover", "adademo_takeover", "budgeted_takeover_backoff"}
 
 
 def main() -> None:
@@ -503,7 +376,7 @@ def main() -> None:
     elif args.phase == "export":
         phase_export(args.out)
     else:
-        phase_report(args.seeds, args.arms)
+        phase_report(args.seeds, args.arms)  # every seed of the summaries folder
 
 
 if __name__ == "__main__":

@@ -1,0 +1,389 @@
+"""The data-efficiency report: success against what each arm paid, per seed, paired with Uniform.
+
+Read from the committed summaries (`benchmarks/results/<folder>/seed<S>-<arm>.json`, one per finished arm and
+seed, all from one machine): every arm's curve of average success against the cost it added per task after the
+shared round 0, in demonstrations, expert frames (env steps under the expert's control, failed attempts included)
+and episodes (demonstrations + every evaluation episode of the expansion rounds). From the curves, per seed:
+
+- the paired difference to Uniform after round 3 (at the arm's own cost; equal demonstrations for arms that spend
+  the same budget) and at equal expert frames (both curves read at the smaller of the two final frame counts);
+- the cost at which the arm first reaches Uniform's final average, as a fraction of Uniform's cost, per measure.
+
+Differences get a 95 % t-interval over seeds (paired), ratios a 95 % bootstrap interval over seeds.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+MEASURES = {"demos": "demonstrations", "frames": "expert frames", "episodes": "episodes"}
+# Two-sided 95 % quantiles of Student's t, by degrees of freedom (1..30).
+T95 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
+       2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042]  # fmt: skip
+
+
+@dataclass
+class Run:
+    """One arm on one seed: success per task and round, and what each round added (per task, on average)."""
+
+    arm: str
+    seed: int
+    tasks: list[str]
+    success: np.ndarray  # task x round
+    added: dict[str, np.ndarray]  # measure -> cumulative added per task after round 0..R (starts at 0)
+    ledger: list[dict]
+    episodes: list[
+        dict
+    ]  # per episode of the expansion rounds: task, round, source, start_step, length (if exported)
+
+    @property
+    def average(self) -> np.ndarray:  # by round
+        return self.success.mean(axis=0)
+
+
+def load_run(summary: dict) -> Run:
+    tasks = summary["tasks"]
+    success = np.array([summary["success"][t] for t in tasks], dtype=float)
+    rounds = success.shape[1]
+    per_round = {m: np.zeros(rounds) for m in MEASURES}
+    for row in summary["ledger"]:
+        r = row["round"] - min(x["round"] for x in summary["ledger"]) + 1
+        per_round["demos"][r] += row["demos_added"]
+        per_round["frames"][r] += row["collection_env_steps"]
+        per_round["episodes"][r] += row["demos_added"] + row.get("eval_episodes_run", row["eval_episodes"])
+    added = {m: np.cumsum(v) / len(tasks) for m, v in per_round.items()}
+    return Run(
+        summary["arm"], summary["seed"], tasks, success, added, summary["ledger"], summary.get("episodes", [])
+    )
+
+
+def load_runs(folder: Path) -> dict[tuple[str, int], Run]:
+    runs = {}
+    for path in sorted(folder.glob("seed*-*.json")):
+        summary = json.loads(path.read_text())
+        runs[(summary["arm"], summary["seed"])] = load_run(summary)
+    task_sets = {tuple(r.tasks) for r in runs.values()}
+    if len(task_sets) > 1:
+        raise SystemExit(f"the summaries in {folder} are of different task sets: {sorted(task_sets)}")
+    return runs
+
+
+def cost_to_reach(x: np.ndarray, y: np.ndarray, target: float) -> float | None:
+    """The cost at which the curve (x, y) first reaches `target`, interpolated linearly between rounds."""
+    if y[0] >= target:
+        return float(x[0])
+    for k in range(1, len(x)):
+        if y[k] >= target:
+            return float(x[k - 1] + (target - y[k - 1]) / (y[k] - y[k - 1]) * (x[k] - x[k - 1]))
+    return None
+
+
+def value_at(x: np.ndarray, y: np.ndarray, level: float) -> float:
+    """The curve's success at cost `level` (within its range), interpolated linearly."""
+    return float(np.interp(level, x, y))
+
+
+def t_interval(values: np.ndarray) -> tuple[float, float]:
+    """Mean and half-width of the 95 % t-interval (nan half-width for a single value)."""
+    values = np.asarray(values, float)
+    if len(values) < 2:
+        return float(values.mean()), float("nan")
+    half = T95[min(len(values) - 1, len(T95)) - 1] * values.std(ddof=1) / np.sqrt(len(values))
+    return float(values.mean()), float(half)
+
+
+def bootstrap_interval(values: np.ndarray, n: int = 10000, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile interval of the mean, resampling seeds."""
+    values = np.asarray(values, float)
+    rng = np.random.default_rng(seed)
+    means = rng.choice(values, size=(n, len(values)), replace=True).mean(axis=1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+@dataclass
+class Comparison:
+    """An arm against Uniform over the seeds both finished."""
+
+    arm: str
+    seeds: list[int]
+    final_diff: np.ndarray  # per seed, points, after round 3
+    frames_diff: np.ndarray  # per seed, points, at equal expert frames
+    frames_level: np.ndarray  # per seed, the expert frames per task compared at
+    ratio: dict[
+        str, list[float | None]
+    ]  # measure -> per seed, cost to reach Uniform's final / Uniform's cost
+
+
+def compare(runs: dict[tuple[str, int], Run], arm: str, seeds: list[int]) -> Comparison:
+    final, frames_diff, levels, ratio = [], [], [], {m: [] for m in MEASURES}
+    for s in seeds:
+        mine, uniform = runs[(arm, s)], runs[("uniform", s)]
+        final.append(100 * (mine.average[-1] - uniform.average[-1]))
+        level = min(mine.added["frames"][-1], uniform.added["frames"][-1])
+        levels.append(level)
+        frames_diff.append(
+            100
+            * (
+                value_at(mine.added["frames"], mine.average, level)
+                - value_at(uniform.added["frames"], uniform.average, level)
+            )
+        )
+        for m in MEASURES:
+            reached = cost_to_reach(mine.added[m], mine.average, uniform.average[-1])
+            ratio[m].append(None if reached is None else reached / uniform.added[m][-1])
+    return Comparison(arm, seeds, np.array(final), np.array(frames_diff), np.array(levels), ratio)
+
+
+def fmt_diff(values: np.ndarray) -> str:
+    mean, half = t_interval(values)
+    interval = "" if np.isnan(half) else f" [{mean - half:+.1f}, {mean + half:+.1f}]"
+    return f"{mean:+.1f}{interval}"
+
+
+def fmt_ratio(values: list[float | None]) -> str:
+    reached = np.array([v for v in values if v is not None])
+    if not len(reached):
+        return f"not reached (0/{len(values)} seeds)"
+    lo, hi = bootstrap_interval(reached) if len(reached) > 1 else (reached[0], reached[0])
+    missing = "" if len(reached) == len(values) else f"; not reached on {len(values) - len(reached)} seed(s)"
+    return f"{reached.mean():.2f}x [{lo:.2f}, {hi:.2f}]{missing}"
+
+
+def correction_lines(
+    runs: dict[tuple[str, int], Run], arm: str, seeds: list[int], tasks: list[str]
+) -> list[str]:
+    """Per task, for an arm with corrections: how often the expert failed from a takeover state, where the
+    expert took over and how long corrections were (against Uniform's demonstrations)."""
+    rows = []
+    for t in tasks:
+        ledger = [row for s in seeds for row in runs[(arm, s)].ledger if row["task"] == t]
+        uniform = [row for s in seeds for row in runs[("uniform", s)].ledger if row["task"] == t]
+        tried = sum(r["demos_added"] + r["expert_failures"] for r in ledger)
+        failed = sum(r["expert_failures"] for r in ledger)
+        frames = sum(r.get("demo_frames", 0) for r in ledger) / max(1, sum(r["demos_added"] for r in ledger))
+        uniform_frames = sum(r["collection_env_steps"] for r in uniform) / max(
+            1, sum(r["demos_added"] for r in uniform)
+        )
+        steps = [e["start_step"] for s in seeds for e in runs[(arm, s)].episodes if e["task"] == t]
+        rows.append(
+            f"| {t} | {failed}/{tried} ({100 * failed / max(1, tried):.0f} %) | "
+            f"{np.mean(steps):.0f} | {frames:.0f} | {uniform_frames:.0f} |"
+            if steps
+            else f"| {t} | {failed}/{tried} ({100 * failed / max(1, tried):.0f} %) | - | {frames:.0f} | "
+            f"{uniform_frames:.0f} |"
+        )
+    return [
+        "| task | expert failed from the takeover state | mean takeover step | frames per correction "
+        "| Uniform's expert frames per demo |",
+        "| --- | --- | --- | --- | --- |",
+        *rows,
+    ]
+
+
+def plot_curves(runs, arms: list[str], seeds: list[int], labels: dict[str, str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(MEASURES), figsize=(5.2 * len(MEASURES), 4), sharey=True)
+    for ax, (measure, name) in zip(axes, MEASURES.items(), strict=True):
+        for arm in arms:
+            xs = np.array([runs[(arm, s)].added[measure] for s in seeds])
+            ys = 100 * np.array([runs[(arm, s)].average for s in seeds])
+            ax.errorbar(
+                xs.mean(0), ys.mean(0), yerr=ys.std(0), marker="o", capsize=3, label=labels.get(arm, arm)
+            )
+        ax.set_xlabel(f"{name} added per task (after the shared round 0)")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("average success rate (%)")
+    axes[-1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_report(
+    folder: Path,
+    labels: dict[str, str],
+    title: str,
+    header: list[str],
+    takeover_arms: set[str],
+    out: Path,
+) -> str:
+    """The report of every arm in `folder` (markdown at `out`, plot beside it); keeps a hand-written `## Reading`."""
+    from adademo_lerobot.tables import table
+
+    runs = load_runs(folder)
+    seeds_of = {arm: sorted(s for a, s in runs if a == arm) for arm, _ in runs}
+    if "uniform" not in seeds_of:
+        raise SystemExit(f"no Uniform summary in {folder}: nothing to compare with")
+    arms = [a for a in labels if a in seeds_of] + sorted(set(seeds_of) - set(labels))
+    common = sorted(set.intersection(*(set(seeds_of[a]) for a in arms)))
+    tasks = next(iter(runs.values())).tasks
+    rounds = next(iter(runs.values())).success.shape[1]
+    lines = [f"# {title}", "", *header, ""]
+    lines += [
+        "Seeds per arm: "
+        + "; ".join(f"{labels.get(a, a)} {', '.join(map(str, seeds_of[a]))}" for a in arms)
+        + ".",
+        "",
+        f"## Curves (seeds {', '.join(map(str, common)) or 'none'}: every arm finished them)",
+        "",
+        "Average success on the same 50 fixed initial states per task, mean ± std over seeds; in brackets what the "
+        "expansion rounds added per task: demonstrations / expert frames.",
+        "",
+    ]
+    if common:
+        rows = []
+        for arm in arms:
+            cells = []
+            for r in range(rounds):
+                ys = [100 * runs[(arm, s)].average[r] for s in common]
+                demos = np.mean([runs[(arm, s)].added["demos"][r] for s in common])
+                frames = np.mean([runs[(arm, s)].added["frames"][r] for s in common])
+                cells.append(f"{np.mean(ys):.1f} ± {np.std(ys):.1f} ({demos:.1f} / {frames:.0f})")
+            rows.append([labels.get(arm, arm), *cells])
+        lines += [table(["arm", *(f"round {r}" for r in range(rounds))], rows, aligned=False)]
+        plot_curves(runs, arms, common, labels, out.with_suffix(".png"))
+    comparisons = {}
+    for arm in arms:
+        seeds = [s for s in seeds_of[arm] if s in seeds_of["uniform"]]
+        if arm != "uniform" and seeds:
+            comparisons[arm] = compare(runs, arm, seeds)
+    lines += [
+        "",
+        "## Against Uniform, paired by seed",
+        "",
+        "Differences in points of average success (mean over seeds [95 % t-interval]); 'equal frames': both curves "
+        "read at the smaller of the two arms' final expert frames per task; 'reaches Uniform's final average with': "
+        "the arm's cost there over Uniform's final cost (mean [95 % bootstrap interval over seeds]).",
+        "",
+    ]
+    rows = []
+    for arm, c in comparisons.items():
+        rows.append(
+            [
+                labels.get(arm, arm),
+                len(c.seeds),
+                fmt_diff(c.final_diff),
+                f"{fmt_diff(c.frames_diff)} @ {c.frames_level.mean():.0f}",
+                *(fmt_ratio(c.ratio[m]) for m in MEASURES),
+            ]
+        )
+    lines += [
+        table(
+            [
+                "arm",
+                "seeds",
+                "after round 3",
+                "at equal expert frames",
+                *(f"reaches Uniform's with: {n}" for n in MEASURES.values()),
+            ],
+            rows,
+            aligned=False,
+        ),
+        "",
+        "Per seed, after round 3: "
+        + "; ".join(
+            f"{labels.get(a, a)} " + ", ".join(f"{d:+.1f}" for d in c.final_diff)
+            for a, c in comparisons.items()
+        )
+        + ".",
+        "",
+        "## Per task (round 3: mean over each arm's seeds, paired difference to Uniform in brackets)",
+        "",
+    ]
+    rows = []
+    for t, task in enumerate(tasks):
+        cells = []
+        for arm in arms:
+            seeds = [s for s in seeds_of[arm] if s in seeds_of["uniform"]]
+            mine = np.array([runs[(arm, s)].success[t, -1] for s in seeds])
+            base = np.array([runs[("uniform", s)].success[t, -1] for s in seeds])
+            cells.append(
+                f"{100 * mine.mean():.0f}"
+                + ("" if arm == "uniform" else f" ({100 * (mine - base).mean():+.0f})")
+            )
+        rows.append([task, *cells])
+    lines += [table(["task", *(labels.get(a, a) for a in arms)], rows, aligned=False)]
+    for arm in arms:
+        if arm in takeover_arms:
+            lines += [
+                "",
+                f"Corrections of {labels.get(arm, arm)} (seeds {', '.join(map(str, seeds_of[arm]))}):",
+                "",
+            ]
+            lines += correction_lines(
+                runs, arm, [s for s in seeds_of[arm] if s in seeds_of["uniform"]], tasks
+            )
+    lines += ["", "## Goals", ""] + goal_lines(comparisons, takeover_arms, labels)
+    if common:
+        lines += [
+            "",
+            f"![success against demonstrations, expert frames and episodes]({out.with_suffix('.png').name})",
+        ]
+    reading = out.read_text().partition("\n## Reading")[2] if out.exists() else ""
+    text = "\n".join(lines) + "\n" + (f"\n## Reading{reading}" if reading else "")
+    out.write_text(text)
+    return text
+
+
+def goal_lines(
+    comparisons: dict[str, Comparison], takeover_arms: set[str], labels: dict[str, str]
+) -> list[str]:
+    """The corrections issue's goals, computed: the best takeover arm (most seeds, then the best difference at
+    equal expert frames) against Uniform and against the best initial-state arm."""
+    takeover = [a for a in comparisons if a in takeover_arms]
+    initial = [a for a in comparisons if a not in takeover_arms]
+    if not takeover:
+        return ["No takeover arm has finished a seed yet."]
+
+    def best(arms: list[str], key) -> str:
+        most = max(len(comparisons[a].seeds) for a in arms)
+        return max((a for a in arms if len(comparisons[a].seeds) == most), key=key)
+
+    arm = best(takeover, lambda a: comparisons[a].frames_diff.mean())
+    c = comparisons[arm]
+    frames = [v for v in c.ratio["frames"] if v is not None]
+    mean, half = t_interval(c.frames_diff)
+    lines = [f"Best takeover arm: {labels.get(arm, arm)} ({len(c.seeds)} seeds)."]
+    if frames:
+        ratio = np.mean(frames)
+        verdict = (
+            "met" if ratio <= 1 / 3 and len(frames) == len(c.seeds) else f"missed ({ratio:.2f}x, goal 0.33x)"
+        )
+        lines.append(f"- Uniform's final average with <= 1/3 of Uniform's added expert frames: {verdict}.")
+    else:
+        lines.append(
+            "- Uniform's final average with <= 1/3 of Uniform's added expert frames: missed (never reached)."
+        )
+    if initial:
+        rival = best(initial, lambda a: comparisons[a].final_diff.mean())
+        mine = [v for v in c.ratio["demos"] if v is not None]
+        theirs = [v for v in comparisons[rival].ratio["demos"] if v is not None]
+        if mine and theirs:
+            verdict = "met" if np.mean(mine) < np.mean(theirs) else "missed"
+            lines.append(
+                f"- ... with fewer demonstrations than the best initial-state arm ({labels.get(rival, rival)}): "
+                f"{verdict} ({np.mean(mine):.2f}x vs {np.mean(theirs):.2f}x of Uniform's)."
+            )
+        else:
+            lines.append(
+                f"- ... with fewer demonstrations than the best initial-state arm ({labels.get(rival, rival)}): "
+                "not decidable (one of them never reached Uniform's final average)."
+            )
+    ok = len(c.seeds) >= 5 and mean >= 5 and mean - half > 0
+    short = [] if len(c.seeds) >= 5 else [f"{len(c.seeds)} of 5 seeds"]
+    short += [] if mean >= 5 else [f"{mean:+.1f} points, {5 - mean:.1f} short"]
+    short += [] if np.isnan(half) or mean - half > 0 else ["the interval includes 0"]
+    lines.append(
+        "- At equal expert frames >= Uniform + 5 points after 3 rounds, 95 % interval above 0: "
+        + ("met" if ok else f"missed ({'; '.join(short)})")
+        + f": {fmt_diff(c.frames_diff)}."
+    )
+    return lines
