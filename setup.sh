@@ -110,7 +110,7 @@ refresh_lock() {
   echo "wrote $LOCK ($(lock_lines | wc -l) packages); review the diff above, then run the tests and the quickstart"
 }
 
-# Two cores: keep torch from oversubscribing them beside env worker processes (README, "Threads").
+# Two cores: keep torch from oversubscribing them beside env worker processes (docs/installation.md, "Threads on 2 cores").
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-2}"
 
 case "${1:-}" in

@@ -12,8 +12,9 @@
             until c = E_i                                (principle A: weak tasks get more demos)
         D = D_0 u ... u D_i;  re-train pi on D          (principle C: trajectory-uniform sampling)
 
-`collect_on_failed_states` is the inner loop (lines 4-16) for one task. The outer loop (train, rounds, retrain)
-is `adademo_lerobot.run`, which calls this through the `adademo` strategy. Evaluations run in batches no
+`collect_on_failed_states` is the inner loop (lines 4-16) for one task, with the round's E and CAP and a bound on
+evaluations (so a task the expert cannot solve still ends). The outer loop (train, rounds, retrain) is
+`adademo_lerobot.run`, which calls this through the `adademo` strategy. Evaluations run in batches no
 larger than the fewest episodes that could end the loop, so batching never evaluates past the stopping point.
 With a Ray executor the expert starts on all of a batch's failures at once and several tasks' loops run side by
 side; every decision below is the same, so is the result.
@@ -30,11 +31,17 @@ if TYPE_CHECKING:  # the strategies call this loop with their context; the loop 
     from adademo_lerobot.strategies.base import RoundContext
 
 
-def collect_on_failed_states(ctx: RoundContext, task: str, record: TaskRoundRecord) -> TaskRoundRecord:
-    E, CAP = ctx.target_successes, ctx.max_demos_per_task  # noqa: N806  (the paper's names)
+def collect_on_failed_states(
+    ctx: RoundContext,
+    task: str,
+    record: TaskRoundRecord,
+    E: int,  # noqa: N803  (the paper's names)
+    CAP: int,  # noqa: N803
+    max_evaluations: int,
+) -> TaskRoundRecord:
     c, k = 0, 0  # successes so far, initial states sampled so far
-    while c < E and record.demos_added < CAP and k < ctx.max_eval_episodes_per_task:
-        batch_size = min(ctx.batch_size, E - c, CAP - record.demos_added, ctx.max_eval_episodes_per_task - k)
+    while c < E and record.demos_added < CAP and k < max_evaluations:
+        batch_size = min(ctx.batch_size, E - c, CAP - record.demos_added, max_evaluations - k)
         seeds = [expansion_state_seed(ctx.seed, ctx.round_index, task, k + j) for j in range(batch_size)]
         outcomes = ctx.evaluate(task, seeds)  # line 9: evaluate pi on s
         ctx.ask_expert(

@@ -113,6 +113,47 @@ def _fold_choice_args(args: list[str], paths: list[str]) -> list[str]:
     return rest + [f"--{path}={json.dumps(values)}" for path, values in raw.items()]
 
 
+_NOTED: set[str] = set()
+
+
+def retyped_recipe(config_cls: type, config_path: str | None, args: list[str], folder: str) -> str | None:
+    """The recipe, or a copy of it in `folder` for a command line that picks another type for one of its choices
+    (`--strategy.type=uniform` on a recipe whose strategy is budgeted): the recipe's settings the new type does
+    not have are dropped (said once), the ones it has are kept (a budget stays the budget)."""
+    if config_path is None:
+        return None
+    import draccus
+    import yaml
+
+    content = yaml.safe_load(Path(config_path).read_text()) or {}
+    hints = typing.get_type_hints(config_cls)
+    changed = False
+    for name, section in content.items():
+        kind = hints.get(name)
+        picked = next((a.split("=", 1)[1] for a in args if a.startswith(f"--{name}.type=")), None)
+        is_choice = isinstance(kind, type) and issubclass(kind, draccus.ChoiceRegistry)
+        if not (is_choice and isinstance(section, dict) and picked) or section.get("type") == picked:
+            continue
+        try:
+            fields = {f.name for f in dataclasses.fields(kind.get_choice_class(picked))}
+        except KeyError:
+            continue  # an unknown type: the parse says so
+        dropped = sorted(k for k in section if k != "type" and k not in fields)
+        content[name] = {**{k: v for k, v in section.items() if k in fields}, "type": picked}
+        changed = True
+        note = f"note: --{name}.type={picked} replaces the recipe's {section.get('type')} {name}" + (
+            f" (its {', '.join(dropped)} not used)" if dropped else ""
+        )
+        if dropped and note not in _NOTED:
+            _NOTED.add(note)
+            print(note, flush=True)
+    if not changed:
+        return config_path
+    path = Path(folder) / Path(config_path).name
+    path.write_text(yaml.safe_dump(content))
+    return str(path)
+
+
 def parse_light(config_cls: type, argv: list[str], known_only: bool = False) -> Any:
     """Parse `config_cls` without importing LeRobot (`lerobot_choice` fields become dicts). `known_only`:
     flags and config-file keys the class does not know are left to a later parse instead of refused."""
@@ -122,9 +163,10 @@ def parse_light(config_cls: type, argv: list[str], known_only: bool = False) -> 
 
     config_path, args = _pop_arg("config_path", argv)
     args = _fold_choice_args(args, list(choice_fields(config_cls)))
-    if not known_only:
-        return draccus.parse(config_class=config_cls, config_path=config_path, args=args)
     with tempfile.TemporaryDirectory() as tmp:
+        config_path = retyped_recipe(config_cls, config_path, args, tmp)
+        if not known_only:
+            return draccus.parse(config_class=config_cls, config_path=config_path, args=args)
         if config_path is not None:  # keep the keys this class knows (the rest is LeRobot's)
             names = {f.name for f in dataclasses.fields(config_cls)}
             content = yaml.safe_load(Path(config_path).read_text()) or {}
@@ -144,7 +186,9 @@ def parse_config(config_cls: type, argv: list[str]) -> Any:
         config_cls = with_lerobot_types(config_cls, {p: lerobot_choice_type(k) for p, k in choices.items()})
     config_path, args = _pop_arg("config_path", argv)
     if not hasattr(config_cls, "__get_path_fields__"):
-        return draccus.parse(config_class=config_cls, config_path=config_path, args=args)
+        with tempfile.TemporaryDirectory() as tmp:
+            config_path = retyped_recipe(config_cls, config_path, args, tmp)
+            return draccus.parse(config_class=config_cls, config_path=config_path, args=args)
     # LeRobot's training config: --policy.type, or --policy.path with --policy.* overrides of its config. The path
     # is read here, from this command's own flags, and handed to the config (which never reads sys.argv).
     from lerobot.configs import parser
@@ -159,6 +203,46 @@ def parse_config(config_cls: type, argv: list[str]) -> Any:
     if policy_path:
         cfg.use_pretrained_policy(policy_path, overrides)
     return cfg
+
+
+def configure_logging() -> None:
+    """Our library's messages as a command's output: information plain on stdout, warnings on stderr;
+    LeRobot logs every dataset open and video codec choice at INFO, so others show from WARNING."""
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    ours = logging.getLogger("adademo_lerobot")
+    ours.setLevel(logging.INFO)
+    ours.propagate = False
+    info = logging.StreamHandler(sys.stdout)
+    info.setFormatter(logging.Formatter("%(message)s"))
+    info.addFilter(lambda record: record.levelno < logging.WARNING)
+    warnings = logging.StreamHandler(sys.stderr)
+    warnings.setLevel(logging.WARNING)
+    warnings.setFormatter(logging.Formatter("warning: %(message)s"))
+    ours.handlers = [info, warnings]
+
+
+def one_line_usage_errors(parse: Callable, *args) -> Any:
+    """`parse(*args)`, with argparse's usage error (an unknown flag, an invalid choice: usage text, then
+    `prog: error: ...`, exit 2) turned into our one `error:` line. Help and anything else pass through."""
+    import contextlib
+    import io
+
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            result = parse(*args)
+    except SystemExit as stop:
+        text = captured.getvalue()
+        if stop.code == 2 and ": error: " in text:
+            print(f"error: {' '.join(text.rsplit(': error: ', 1)[1].split())}", file=sys.stderr)
+            sys.exit(2)
+        sys.stderr.write(text)
+        raise
+    except BaseException:
+        sys.stderr.write(captured.getvalue())
+        raise
+    sys.stderr.write(captured.getvalue())
+    return result
 
 
 def _resolve(target: str | Callable) -> Any:
@@ -177,18 +261,16 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
     line; Ctrl-C exits 130 saying how to resume."""
     import draccus
 
-    # LeRobot logs every dataset open and video codec choice at INFO; ours and everyone's warnings show.
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
-    logging.getLogger("adademo_lerobot").setLevel(logging.INFO)
+    configure_logging()
     argv = sys.argv[1:]
     try:
-        cfg = parse_light(config_cls, argv, known_only=lerobot_config is not None)
+        cfg = one_line_usage_errors(parse_light, config_cls, argv, lerobot_config is not None)
         if hasattr(cfg, "validate"):
             cfg.validate()
         if lerobot_config is not None:
-            cfg = parse_config(_resolve(lerobot_config), argv)
+            cfg = one_line_usage_errors(parse_config, _resolve(lerobot_config), argv)
         elif choice_fields(config_cls):
-            cfg = parse_config(config_cls, argv)
+            cfg = one_line_usage_errors(parse_config, config_cls, argv)
         _resolve(target)(cfg)
     except AdaDemoError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -7,10 +7,11 @@ from typing import Any
 
 from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.executors import RayArgs
+from adademo_lerobot.executors import ExecutionArgs, RayArgs
 from adademo_lerobot.samplers import check_sampler_flags
+from adademo_lerobot.strategies import StrategyConfig, default_strategy
 from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
-from adademo_lerobot.takeover import TakeoverArgs
+from adademo_lerobot.takeover import TakeoverArgs, check_demo_start
 
 LR_SCHEDULES = ("preset", "cosine")
 LEROBOT_CHOICE = "lerobot_choice"  # field metadata: the kind of LeRobot config the field holds
@@ -64,8 +65,6 @@ class TrainSamplingArgs:
     min_task_weight: float = 0.0
     # `tempered`: a task's share is proportional to (its trajectories) ** sampler_alpha (1: trajectory, 0: task).
     sampler_alpha: float = 1.0
-    # torch intra-op threads (2-core default; lower it when env worker processes run beside training).
-    torch_threads: int = 2
     # Serve batches from tensors held in memory (datasets without camera frames); false: LeRobot's loading.
     in_memory: bool = True
     # `preset`: the policy's own learning-rate schedule (ACT: constant); `cosine`: a short warmup, then cosine
@@ -87,6 +86,9 @@ class TrainCommandFlags(TrainSamplingArgs):
     (`lerobot-train --help` lists them). Defaults that differ from lerobot-train: --steps=3000 --batch_size=64
     --num_workers=0 --save_freq=1000 --env_eval_freq=0."""
 
+    # torch intra-op threads (2-core default; lower it when env worker processes run beside training).
+    torch_threads: int = 2
+
 
 @dataclass
 class PolicyPathArgs:
@@ -101,46 +103,30 @@ class EvalBatchArgs:
 
 
 @dataclass
-class EvalCommandConfig:
+class EvalCommandConfig(ExecutionArgs):
     policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
-    # The suite is rebuilt from the dataset (meta/adademo/suite.json); without a dataset, from --suite.*.
+    # The suite is rebuilt from the dataset (meta/adademo/suite.json; --suite.tasks picks a subset of its tasks);
+    # without a dataset, from --suite.*.
     dataset: DatasetArgs = field(default_factory=DatasetArgs)
     suite: SuiteConfig = field(default_factory=default_suite)
     episodes_per_task: int = 10
     seed: int = 0
     output_dir: str | None = None
     eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
-    device: str = "cpu"
-    torch_threads: int = 2
-    # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
-    executor: str = "local"
-    ray: RayArgs = field(default_factory=RayArgs)
 
 
 @dataclass
-class ExpandConfig:
+class ExpandConfig(ExecutionArgs):
     dataset: DatasetArgs = field(default_factory=DatasetArgs)
     policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
-    # adademo (principles A+B) | budgeted (A+B with a round budget) | uniform (the paper's baseline) |
-    # task_only (ablation A)
-    strategy: str = "adademo"
-    # E: evaluation successes per task that end a task's collection (adademo; task_only's allocation).
-    # Default 10; with --budget, picked so that the predicted total fits the budget.
-    target_successes: int | None = None
-    # B: demos in the round. budgeted: spent exactly; adademo/task_only: picks E; uniform: split evenly.
-    budget: int | None = None
-    # budgeted: weight of an earlier round's evaluation outcomes per round since (1: all count the same).
-    posterior_decay: float = 0.5
-    # CAP: at most this many new demos per task in this round (the paper's per-round cap).
-    max_demos_per_task: int = 50
-    # N: new demos per task for `uniform`.
-    demos_per_task: int = 10
-    # Bound on evaluation episodes per task so a task the expert cannot solve still ends (default 2 x (E + CAP)).
-    max_eval_episodes_per_task: int | None = None
-    # Evaluation episodes per task used to estimate SR_k (task_only, plan_only).
-    plan_episodes_per_task: int = 20
-    # Evaluate and print the predicted demos per task (N_k = E/SR_k - E, capped) without collecting.
+    # The expansion strategy and its settings: --strategy.type=adademo|budgeted|uniform|task_only, then its fields
+    # (--strategy.target_successes=5, --strategy.budget=20, ...; `docs/commands/expand.md` lists them).
+    strategy: StrategyConfig = field(default_factory=default_strategy)
+    # Evaluate and print the predicted demos per task (N_k = E/SR_k - E, capped, with the strategy's E and CAP)
+    # without collecting (adademo and task_only).
     plan_only: bool = False
+    # --plan_only: evaluation episodes per task that estimate SR_k.
+    plan_episodes_per_task: int = 20
     seed: int = 0
     collector: CollectorConfig = field(default_factory=default_collector)
     # Where a demonstration starts: `initial` (the failed episode's initial state: the paper) or `takeover` (a
@@ -148,12 +134,37 @@ class ExpandConfig:
     demo_start: str = "initial"
     takeover: TakeoverArgs = field(default_factory=TakeoverArgs)
     eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
-    device: str = "cpu"
-    torch_threads: int = 2
+    # Demonstrations buffered in memory between dataset commits (a kill loses at most these).
     commit_every: int = 10
-    # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
-    executor: str = "local"
-    ray: RayArgs = field(default_factory=RayArgs)
+
+    def validate(self, one_round: bool = True) -> None:
+        """The flags alone (answered before LeRobot is imported); `one_round`: adademo-expand's own flags, one
+        value per setting (adademo-run hands over its per-round lists)."""
+        self.strategy.validate()
+        if one_round:
+            self.strategy.check_one_round()
+        check_demo_start(self.demo_start, self.takeover)
+        if self.demo_start == "takeover" and not self.strategy.collects_at_failed_states:
+            raise AdaDemoError(
+                f"--demo_start=takeover corrects failed policy rollouts; --strategy.type={self.strategy.type} "
+                "collects from fresh initial states without evaluating: use --strategy.type=adademo or budgeted, "
+                "or --demo_start=initial"
+            )
+        if self.plan_only and self.strategy.type not in ("adademo", "task_only"):
+            raise AdaDemoError(
+                f"--plan_only predicts N_k = E/SR_k - E: it needs --strategy.type=adademo or task_only, not "
+                f"{self.strategy.type}"
+            )
+        if self.plan_episodes_per_task < 1:
+            raise AdaDemoError(f"--plan_episodes_per_task must be >= 1, got {self.plan_episodes_per_task}")
+        if not self.plan_only and self.plan_episodes_per_task != 20:
+            raise AdaDemoError(
+                "--plan_episodes_per_task is used with --plan_only (task_only's own is "
+                "--strategy.plan_episodes_per_task): add --plan_only, or drop it"
+            )
+        if self.commit_every < 1:
+            raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
+        self.validate_execution()
 
 
 @dataclass

@@ -22,74 +22,15 @@ from adademo_lerobot.dataset.layout import COL_ROUND
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.dataset.store import DemoDataset, recover_interrupted_write
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.executors import check_executor_args, make_executor
+from adademo_lerobot.executors import make_executor
 from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import RoundJournal, append_ledger, ledger_rounds
 from adademo_lerobot.records import TaskRoundRecord
-from adademo_lerobot.strategies import make_strategy, planned_demos
+from adademo_lerobot.strategies import planned_demos
 from adademo_lerobot.strategies.base import RoundContext
-from adademo_lerobot.strategies.budgeted import failure_mean, pick_target_successes, prior_from_earlier_rounds
 from adademo_lerobot.strategies.task_only import estimate_success
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.tables import table
-from adademo_lerobot.takeover import check_demo_start
-
-DEFAULT_TARGET_SUCCESSES = 10
-
-
-def validate(cfg) -> None:
-    strategy = make_strategy(cfg.strategy)
-    check_demo_start(cfg.demo_start, cfg.takeover)
-    if cfg.demo_start == "takeover" and not strategy.collects_at_failed_states:
-        raise AdaDemoError(
-            f"--demo_start=takeover corrects failed policy rollouts; --strategy={cfg.strategy} collects from fresh "
-            "initial states without evaluating: use --strategy=adademo or budgeted, or --demo_start=initial"
-        )
-    for flag, value in (
-        ("target_successes", cfg.target_successes),
-        ("max_demos_per_task", cfg.max_demos_per_task),
-        ("demos_per_task", cfg.demos_per_task),
-        ("plan_episodes_per_task", cfg.plan_episodes_per_task),
-    ):
-        if value is not None and value < 1:
-            raise AdaDemoError(f"--{flag} must be >= 1, got {value}")
-    if cfg.budget is not None and cfg.budget < 1:
-        raise AdaDemoError(f"--budget must be >= 1 (demonstrations in the round), got {cfg.budget}")
-    if cfg.budget is not None and cfg.target_successes is not None:
-        raise AdaDemoError(
-            f"--budget={cfg.budget} and --target_successes={cfg.target_successes} both set the round's size: "
-            "pass one (with --budget, E is picked to fit it)"
-        )
-    if cfg.strategy == "budgeted" and cfg.budget is None:
-        raise AdaDemoError("--strategy=budgeted needs --budget=B (demonstrations in the round)")
-    if not 0 < cfg.posterior_decay <= 1:
-        raise AdaDemoError(f"--posterior_decay must be in (0, 1], got {cfg.posterior_decay}")
-    if cfg.max_eval_episodes_per_task is not None and cfg.max_eval_episodes_per_task < 1:
-        raise AdaDemoError(f"--max_eval_episodes_per_task must be >= 1, got {cfg.max_eval_episodes_per_task}")
-    if cfg.dataset.root is None:
-        raise AdaDemoError("--dataset.root is required (an adademo dataset made by adademo-collect)")
-    if not has_dataset(cfg.dataset.root):
-        raise AdaDemoError(f"no LeRobot dataset at {cfg.dataset.root}; create one with adademo-collect")
-
-
-def target_successes_for(cfg, root: Path, suite, round_index: int) -> int:
-    """E: the flag, the default, or (with --budget, for adademo and task_only) the largest E whose predicted
-    total fits the budget, from each task's success estimate over the earlier rounds' evaluations."""
-    if cfg.target_successes is not None:
-        return cfg.target_successes
-    if cfg.budget is None or cfg.strategy not in ("adademo", "task_only"):
-        return DEFAULT_TARGET_SUCCESSES
-    rates = {
-        t: 1 - failure_mean(prior_from_earlier_rounds(root, round_index, t, cfg.posterior_decay))
-        for t in suite.tasks
-    }
-    target, plan = pick_target_successes(cfg.budget, rates, cfg.max_demos_per_task)
-    print(
-        f"budget {cfg.budget}: picked E={target} (predicted demos "
-        + ", ".join(f"{t} {n}" for t, n in plan.items())
-        + f"; total {sum(plan.values())})"
-    )
-    return target
 
 
 def demo_start_settings(cfg) -> dict:
@@ -149,24 +90,25 @@ def format_round_table(records: list[TaskRoundRecord]) -> str:
     return table(["task", "eval", "SR", "demos", "expert fail", "cap", "eval steps", "collect steps"], rows)
 
 
-def plan(cfg, suite, ctx: RoundContext) -> list[dict]:
-    """Evaluate and predict each task's demos without collecting (price a round before paying for it)."""
+def plan(cfg, suite, ctx: RoundContext, strategy) -> list[dict]:
+    """Evaluate and predict each task's demos with the strategy's E and CAP, without collecting (price a round
+    before paying for it)."""
+    strategy.start(ctx, None)
+    target, cap = strategy.target_successes, strategy.cap
     rows = []
     for task in tqdm(suite.tasks, desc="planning", unit="task", dynamic_ncols=True):
         record = ctx.new_record(task, "plan")
-        sr = estimate_success(ctx, task, record)
+        sr = estimate_success(ctx, task, record, cfg.plan_episodes_per_task)
         rows.append(
             {
                 "task": task,
                 "episodes": record.eval_episodes,
                 "successes": record.successes,
                 "success_rate": sr,
-                "predicted_demos": planned_demos(cfg.target_successes, sr, cfg.max_demos_per_task),
+                "predicted_demos": planned_demos(target, sr, cap),
             }
         )
-    print(
-        f"plan for round {ctx.round_index} (E={cfg.target_successes}, CAP={cfg.max_demos_per_task}); nothing collected"
-    )
+    print(f"plan for round {ctx.round_index} (E={target}, CAP={cap}); nothing collected")
     body = [
         (
             r["task"],
@@ -182,16 +124,22 @@ def plan(cfg, suite, ctx: RoundContext) -> list[dict]:
     return rows
 
 
-def run_expand(cfg, round_index: int | None = None, executor=None) -> list[TaskRoundRecord] | list[dict]:
-    """One round. `round_index` is given by adademo-run (its one truth); alone, the command finds the next one.
-    `executor`: adademo-run's, kept across rounds (else one is made from the flags for this round)."""
-    validate(cfg)
-    check_executor_args(cfg.executor, cfg.ray)
+def run_expand(
+    cfg, round_in_run: int | None = None, round_index: int | None = None, executor=None
+) -> list[TaskRoundRecord] | list[dict]:
+    """One round. Alone (`adademo-expand`), the round after the dataset's last, with the strategy's one value per
+    setting; from adademo-run, the run's round `round_in_run` (its per-round values) as the dataset's round
+    `round_index` (the run's one truth), on the run's `executor` (kept across rounds)."""
+    cfg.validate(one_round=round_in_run is None)
+    if cfg.dataset.root is None:
+        raise AdaDemoError("--dataset.root is required (an adademo dataset made by adademo-collect)")
+    if not has_dataset(cfg.dataset.root):
+        raise AdaDemoError(f"no LeRobot dataset at {cfg.dataset.root}; create one with adademo-collect")
     root = Path(cfg.dataset.root)
-    strategy = make_strategy(cfg.strategy)
-    needs_policy = strategy.needs_policy or cfg.plan_only
+    strategy = cfg.strategy.build(round_in_run or 1)
+    needs_policy = cfg.strategy.needs_policy or cfg.plan_only
     if needs_policy and cfg.policy.path is None:
-        raise AdaDemoError(f"--strategy={cfg.strategy} evaluates a policy: pass --policy.path=CKPT")
+        raise AdaDemoError(f"--strategy.type={cfg.strategy.type} evaluates a policy: pass --policy.path=CKPT")
     with exclusive_use(root, "adademo-expand") if not cfg.plan_only else nullcontext():
         if not cfg.plan_only:
             recover_interrupted_write(root)  # a write a kill left half-done is ours to roll back
@@ -207,15 +155,7 @@ def run_expand(cfg, round_index: int | None = None, executor=None) -> list[TaskR
             check_policy(cfg.policy.path, dataset_features(suite))
         own_executor = executor is None
         if own_executor:
-            executor = make_executor(
-                cfg.executor,
-                cfg.ray,
-                suite,
-                cfg.collector,
-                cfg.eval.batch_size,
-                cfg.device,
-                cfg.torch_threads,
-            )
+            executor = make_executor(cfg, suite, cfg.collector, cfg.eval.batch_size)
         try:
             executor.use_policy(str(cfg.policy.path) if needs_policy else None)
             return _expand(cfg, suite, executor, strategy, needs_policy, root, round_index)
@@ -232,60 +172,11 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
     )
     if round_index is None:
         round_index = next_round(root)
-    journal = RoundJournal(root, round_index)
-    started = journal.of_type(
-        "start"
-    )  # a resumed round keeps the E it picked (the estimate would now differ)
-    if (
-        started
-        and cfg.target_successes is None
-        and started[0].get("target_successes") is not None
-        and cfg.budget
-    ):
-        target = started[0]["target_successes"]
-    else:
-        target = target_successes_for(cfg, root, suite, round_index)
-    max_eval = cfg.max_eval_episodes_per_task or 2 * (target + cfg.max_demos_per_task)
-    settings = {
-        "target_successes": target,
-        "max_demos_per_task": cfg.max_demos_per_task,
-        "demos_per_task": cfg.demos_per_task,
-        "max_eval_episodes_per_task": max_eval,
-        "plan_episodes_per_task": cfg.plan_episodes_per_task,
-        "commit_every": cfg.commit_every,
-        "policy_path": str(cfg.policy.path) if needs_policy else None,
-        "budget": cfg.budget,
-        "posterior_decay": cfg.posterior_decay,
-        "commit_by_task": not hasattr(strategy, "expand_round"),
-        "takeover": cfg.takeover if cfg.demo_start == "takeover" else None,
-    }
-    expert = cfg.collector.expert_name(suite)
-    if cfg.plan_only:
-        ctx = RoundContext(suite, dataset, executor, expert, round_index, cfg.seed, source="plan", **settings)
-        return plan(cfg, suite, ctx)
-
-    finish_stale_journals(root)
-    if round_index in ledger_rounds(root):
-        print(f"round {round_index} is already complete (meta/adademo/rounds.jsonl)")
-        return []
-    journal.start(
-        {
-            "strategy": cfg.strategy,
-            "target_successes": target,
-            "max_demos_per_task": cfg.max_demos_per_task,
-            "demos_per_task": cfg.demos_per_task,
-            "budget": cfg.budget,
-            "posterior_decay": cfg.posterior_decay,
-            "plan_episodes_per_task": cfg.plan_episodes_per_task,
-            "max_eval_episodes_per_task": max_eval,
-            "seed": cfg.seed,
-            "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
-            **demo_start_settings(cfg),
-        }
-    )
+    journal = None if cfg.plan_only else RoundJournal(root, round_index)
     bar = tqdm(
-        total=len(suite.tasks), desc=f"round {round_index} ({cfg.strategy})", unit="task", dynamic_ncols=True
-    )
+        total=len(suite.tasks), desc=f"round {round_index} ({strategy.name})", unit="task", dynamic_ncols=True,
+        disable=cfg.plan_only,
+    )  # fmt: skip
 
     def progress(task: str, record: TaskRoundRecord) -> None:
         bar.set_postfix(
@@ -296,29 +187,42 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
         suite,
         dataset,
         executor,
-        expert,
+        cfg.collector.expert_name(suite),
         round_index,
         cfg.seed,
-        source=cfg.strategy,
+        source="plan" if cfg.plan_only else strategy.name,
         journal=journal,
+        commit_every=cfg.commit_every,
+        policy_path=str(cfg.policy.path) if needs_policy else None,
+        commit_by_task=strategy.commits_by_task,
+        takeover=cfg.takeover if cfg.demo_start == "takeover" else None,
         on_progress=progress,
-        **settings,
+        on_task_done=lambda task: bar.update(1),
     )
+    if cfg.plan_only:
+        return plan(cfg, suite, ctx, strategy)
 
-    if hasattr(strategy, "expand_round"):  # decisions that span tasks: one loop over the whole round
-        started_at = time.perf_counter()
-        records = strategy.expand_round(ctx)
+    finish_stale_journals(root)
+    if round_index in ledger_rounds(root):
+        print(f"round {round_index} is already complete (meta/adademo/rounds.jsonl)")
+        return []
+    started = journal.of_type("start")
+    decided = strategy.start(ctx, started[0] if started else None)
+    journal.start(
+        {
+            "strategy": strategy.name,
+            **decided,
+            "seed": cfg.seed,
+            "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
+            **demo_start_settings(cfg),
+        }
+    )
+    started_at = time.perf_counter()
+    records = strategy.expand(ctx)
+    if not strategy.commits_by_task:  # one loop over the whole round
         ctx.flush()
         bar.update(len(suite.tasks))
         share_round_time(records, time.perf_counter() - started_at, journal)
-    else:
-
-        def expand_task(task: str) -> TaskRoundRecord:
-            record = strategy.expand_task(ctx, task)
-            bar.update(1)
-            return record
-
-        records = ctx.run_tasks(expand_task)
     bar.close()
     for record in records:
         ctx.evaluation_cost(record.task, record)

@@ -17,7 +17,7 @@ from tqdm import tqdm
 from adademo_lerobot.collectors import ScriptedCollectorConfig
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.evaluation import format_success_table, success_table, write_eval_outputs
-from adademo_lerobot.executors import Executor, check_executor_args, make_executor
+from adademo_lerobot.executors import Executor, make_executor
 from adademo_lerobot.records import EpisodeRecord
 from adademo_lerobot.seeds import evaluation_seeds
 from adademo_lerobot.suites import SuiteConfig, TaskSuite
@@ -101,19 +101,11 @@ def run_eval(cfg) -> pd.DataFrame:
         raise AdaDemoError(f"--episodes_per_task must be >= 1, got {cfg.episodes_per_task}")
     if cfg.output_dir is None:
         raise AdaDemoError("--output_dir is required")
-    check_executor_args(cfg.executor, cfg.ray)
+    cfg.validate_execution()
     suite_config, tasks = suite_to_evaluate(cfg.dataset.root, cfg.suite)
     suite = make_suite(suite_config)
     check_policy(cfg.policy.path, dataset_features(suite))
-    executor = make_executor(
-        cfg.executor,
-        cfg.ray,
-        suite,
-        ScriptedCollectorConfig(),
-        cfg.eval.batch_size,
-        cfg.device,
-        cfg.torch_threads,
-    )
+    executor = make_executor(cfg, suite, ScriptedCollectorConfig(), cfg.eval.batch_size)
     try:
         executor.use_policy(str(cfg.policy.path))
         records, env_steps, elapsed = evaluate_fixed_set(

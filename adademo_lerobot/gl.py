@@ -1,8 +1,9 @@
 """Which OpenGL backend MuJoCo renders with, chosen only from what this machine can actually load.
 
 MuJoCo reads `MUJOCO_GL` once, when `mujoco` is first imported, and imports that backend's bindings then: with
-`MUJOCO_GL=osmesa` and no libOSMesa, `import mujoco` itself fails. So `prefer_loadable_backend()` (run when the
-package is imported, before anything imports MuJoCo) sets `MUJOCO_GL` only to a backend whose library loads:
+`MUJOCO_GL=osmesa` and no libOSMesa, `import mujoco` itself fails. So `prefer_loadable_backend()` (run by every
+command and by LeRobot's import of our plugins, before anything imports MuJoCo) sets `MUJOCO_GL` only to a backend
+whose library loads:
 EGL on a GPU machine, else OSMesa, else EGL on Mesa's software renderer, else nothing (MuJoCo's default imports
 everywhere). State observations never render. Rendering is checked when it is asked for
 (`check_rendering_works`) by rendering one tiny frame, so `--suite.obs_type=pixels_state` on a machine that

@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from adademo_lerobot.dataset.layout import (
     ADADEMO_DIR,
     COL_ROUND,
     COL_SOURCE,
+    CORRECTION_SOURCE,
     LEDGER_FILE,
     SUITE_FILE,
     TXN_FILE,
@@ -33,6 +33,7 @@ from adademo_lerobot.dataset.layout import (
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.ledger import RoundJournal, read_ledger
+from adademo_lerobot.strategies import StrategyConfig
 from adademo_lerobot.tables import table
 
 log = logging.getLogger(__name__)
@@ -40,38 +41,52 @@ log = logging.getLogger(__name__)
 # Per-task columns in the round table up to this many tasks; beyond it, one row per (round, task) instead.
 MAX_TASK_COLUMNS = 8
 
-_NAME = r"[A-Za-z0-9](?:[A-Za-z0-9._-]*[A-Za-z0-9])?"
-REPO_ID_RE = re.compile(rf"{_NAME}/{_NAME}")
 
-STRATEGY_DESCRIPTIONS = {
+# How the card describes each source of episodes: round 0's, and every strategy's own description.
+SOURCE_DESCRIPTIONS = {
     "initial": "initial collection: expert demonstrations from random initial states (round 0)",
-    "adademo": "AdaDemo (principles A+B): evaluate the policy per task and collect an expert demonstration from "
-    "each initial state it fails, until E successes or CAP demonstrations per task",
-    "uniform": "Uniform (the paper's baseline): N new demonstrations per task from fresh random initial states, "
-    "no policy involved",
-    "task_only": "task_only (ablation A): N_k = E/SR_k - E demonstrations per task (capped at CAP) from fresh "
-    "random initial states, SR_k measured on a policy evaluation",
+    "correction": "corrections: the expert took over a failed policy rollout and finished the task from there",
+    "human": "demonstrations a person teleoperated on the robot (adademo-record)",
+    "imported": "episodes recorded elsewhere (no adademo provenance)",
 }
+
+
+def source_description(name: str) -> str:
+    try:
+        return StrategyConfig.get_choice_class(name).description
+    except KeyError:
+        return SOURCE_DESCRIPTIONS.get(name, "recorded by another tool")
+
 
 COLUMN_DESCRIPTIONS = {
     "adademo/round": "expansion round that added the episode (0 = initial collection)",
-    "adademo/source": "`initial`, or the strategy that added it (`adademo`, `uniform`, `task_only`)",
+    "adademo/source": "`initial`, the strategy that added it (`adademo`, `budgeted`, `uniform`, `task_only`), or "
+    "`correction` (the expert took over a failed policy rollout)",
     "adademo/seed": "seed of the episode's initial state (with the suite, reproduces it)",
     "adademo/initial_state": "the initial state itself (float64 list; MetaWorld: the task's random vector)",
     "adademo/collector": "the expert that recorded it",
     "adademo/suite": "the task-suite family",
+    "adademo/start_step": "the step it starts at: 0, or a correction's step of the failed rollout it answers",
+    "adademo/start_state": "the whole simulator state it starts from (a robot's joint positions): it replays from it",
 }
+
+
+def is_hub_repo_id(value: str) -> bool:
+    """USER/NAME as the hub accepts it (huggingface_hub's own check, with the namespace required)."""
+    from huggingface_hub.errors import HFValidationError
+    from huggingface_hub.utils import validate_repo_id
+
+    try:
+        validate_repo_id(value)
+    except HFValidationError:
+        return False
+    return value.count("/") == 1
 
 
 def validate(cfg: PushConfig) -> Path:
     if cfg.repo_id is None:
         raise AdaDemoError("--repo_id is required: the hub repo to push to, as USER/NAME")
-    if (
-        not REPO_ID_RE.fullmatch(cfg.repo_id)
-        or ".." in cfg.repo_id
-        or "--" in cfg.repo_id
-        or len(cfg.repo_id) > 96
-    ):
+    if not is_hub_repo_id(cfg.repo_id):
         raise AdaDemoError(
             f"--repo_id={cfg.repo_id!r} is not a hub repo id: use USER/NAME (letters, digits, '-', '_', '.'; "
             "no '--' or '..')"
@@ -128,14 +143,13 @@ def _settings(records: list[dict]) -> str:
     if not records:
         return ""
     r = records[0]
-    strategy = r.get("strategy")
-    if strategy == "uniform":
-        keys = [("N", "demos_per_task")]
-    elif strategy in ("adademo", "task_only"):
-        keys = [("E", "target_successes"), ("CAP", "max_demos_per_task")]
-    else:
-        keys = []
-    return ", ".join(f"{label}={r[key]}" for label, key in keys if r.get(key) is not None)
+    values = {
+        "E": r.get("target_successes"),
+        "CAP": r.get("max_demos_per_task"),
+        "N": r.get("demos_per_task"),
+        "B": (r.get("extra") or {}).get("budget"),
+    }
+    return ", ".join(f"{label}={value}" for label, value in values.items() if value is not None)
 
 
 def summarize_rounds(root: Path, tasks: list[str]) -> list[RoundSummary]:
@@ -148,6 +162,8 @@ def summarize_rounds(root: Path, tasks: list[str]) -> list[RoundSummary]:
         new = eps[eps[COL_ROUND] == rnd]
         records = [r for r in ledger if r["round"] == rnd]
         strategies = sorted({r["strategy"] for r in records} or set(new[COL_SOURCE]))
+        if records and (new[COL_SOURCE] == CORRECTION_SOURCE).any():
+            strategies.append(CORRECTION_SOURCE)
         out.append(
             RoundSummary(
                 round=rnd,
@@ -206,7 +222,7 @@ def adademo_card_section(root: str | Path, max_task_columns: int = MAX_TASK_COLU
         f"- **Episodes:** {len(eps)} ({info.get('total_frames', '?')} frames at {info.get('fps', '?')} fps) from "
         f"{len(rounds)} round(s), round 0 = initial collection",
         "- **Strategies used:**",
-        *[f"  - `{s}`: {STRATEGY_DESCRIPTIONS.get(s, 'custom strategy')}" for s in used],
+        *[f"  - `{s}`: {source_description(s)}" for s in used],
         "",
         "#### Rounds",
         "",

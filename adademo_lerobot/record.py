@@ -21,7 +21,8 @@ Keys (LeRobot's key listener, as in lerobot-record): n or Right = next, r or Lef
 f = failure, t = take over (with --demo_start=takeover), q or Esc = stop. A simulated robot (`adademo_sim`) sets its scenes itself, and a teleoperator that
 reports LeRobot's teleop events (`adademo_scripted`) answers for the person.
 
-The round is journaled as adademo-expand's: every policy episode (success, length, initial joints, first frames)
+The loop is Algorithm 1's own (`algorithm.collect_on_failed_states`, as adademo-expand runs it) with a person-backed
+round context (`PersonRound`). The round is journaled as adademo-expand's: every policy episode (success, length, initial joints, first frames)
 and every demonstration. A stop (q, Ctrl-C) or a disconnect loses at most the episode in progress; the same command
 resumes the round, and no failure gets two demonstrations. The ledger records the person's time.
 """
@@ -36,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from adademo_lerobot.algorithm import collect_on_failed_states
 from adademo_lerobot.configs import PolicyPathArgs, lerobot_choice
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.layout import ADADEMO_DIR, CORRECTION_SOURCE
@@ -46,8 +48,9 @@ from adademo_lerobot.expand import next_round
 from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import RoundJournal, append_ledger
 from adademo_lerobot.records import Demonstration, TaskRoundRecord
-from adademo_lerobot.seeds import derive_seed
-from adademo_lerobot.strategies.budgeted import failure_mean, prior_from_earlier_rounds
+from adademo_lerobot.strategies import planned_demos
+from adademo_lerobot.strategies.base import Outcome, default_eval_bound
+from adademo_lerobot.strategies.estimates import failure_mean, prior_from_earlier_rounds
 from adademo_lerobot.tables import table
 from adademo_lerobot.takeover import DEMO_STARTS
 
@@ -267,9 +270,7 @@ def check_recorded_with(root: Path, robot, features: dict[str, dict]) -> None:
 
 def predicted_demos(rate: float | None, target: int, cap: int) -> int:
     """The paper's N_k = E / SR_k - E, capped (CAP when the task has never succeeded or was never evaluated)."""
-    if rate is None or rate <= 0:
-        return cap
-    return min(cap, int(np.ceil(target / rate - target)))
+    return cap if rate is None else planned_demos(target, rate, cap)
 
 
 def plan_lines(root: Path, round_index: int, tasks: list[str], cfg: RecordConfig) -> list[str]:
@@ -461,42 +462,24 @@ class Session:
 
     # -- one task ---------------------------------------------------------------------------------------------
     def run_task(self, task: str) -> TaskRoundRecord:
-        cfg, journal = self.cfg, self.journal
+        """Algorithm 1's inner loop for one task, the person in it."""
+        cfg = self.cfg
         target, cap = cfg.target_successes, cfg.max_demos_per_task
-        max_evals = cfg.max_eval_episodes_per_task or 2 * (target + cap)
+        max_evals = cfg.max_eval_episodes_per_task or default_eval_bound(target, cap)
         self._recover_demos(task)
         if hasattr(self.robot, "select_task"):
             self.robot.select_task(task)
         else:
             self.person.ready(f"next task: {task!r}: set up its scene, then press n")
-        while True:
-            evals, demos, gave_up = (
-                journal.evaluations(task),
-                journal.demos(task),
-                journal.expert_failures(task),
-            )
-            for seed, entry in evals.items():  # a failure not yet answered (also after a resume)
-                if not entry["success"] and seed not in demos and seed not in gave_up and len(demos) < cap:
-                    self._answer(task, entry)
-            successes = sum(e["success"] for e in evals.values())
-            if successes >= target or len(journal.demos(task)) >= cap or len(evals) >= max_evals:
-                break
-            seed = derive_seed(cfg.seed, self.round_index, task, len(evals))
-            episode = self.policy_episode(task, seed)
-            journal.append(episode)  # first: a stop during the correction leaves a failure to answer
-            if "takeover_step" in episode:
-                demo, seconds = self.correction(task, episode)
-                self._store_answer(task, episode, demo, 1, seconds)
-        return self._record(task, max_evals)
+        ctx = PersonRound(self)
+        record = ctx.new_record(task, "adademo", target, cap)
+        collect_on_failed_states(ctx, task, record, target, cap, max_evals)
+        return self._with_costs(record)
 
-    def _answer(self, task: str, failed: dict) -> None:
-        """Answer a failure with a demonstration from the failed episode's start (also a failure whose correction
-        a stop interrupted: the robot is no longer where the person took over)."""
-        self._store_answer(task, failed, *self.demonstration(task, failed))
-
-    def _store_answer(
+    def store_answer(
         self, task: str, failed: dict, demo: Demonstration | None, attempts: int, seconds: float
     ) -> None:
+        """A failure's answer, appended and journaled: the demonstration (or correction), or that none came."""
         if demo is None:
             self.journal.append(
                 {"type": "expert_failure", "task": task, "seed": failed["seed"], "attempts": attempts}
@@ -537,40 +520,77 @@ class Session:
                     entry["start_step"] = int(step)
                 self.journal.append(entry)
 
-    def _record(self, task: str, max_evals: int) -> TaskRoundRecord:
-        cfg, journal = self.cfg, self.journal
-        evals = list(journal.evaluations(task).values())
-        demos = list(journal.demos(task).values())
-        successes = sum(e["success"] for e in evals)
+    def _with_costs(self, record: TaskRoundRecord) -> TaskRoundRecord:
+        """The ledger's figures the loop does not count: every policy episode run and the person's time."""
+        evals = list(self.journal.evaluations(record.task).values())
+        demos = list(self.journal.demos(record.task).values())
         policy_s = sum(e.get("seconds", 0.0) for e in evals)
         demo_s = sum(d.get("seconds", 0.0) for d in demos)
-        return TaskRoundRecord(
-            round=self.round_index,
-            task=task,
-            strategy="adademo",
-            target_successes=cfg.target_successes,
-            max_demos_per_task=cfg.max_demos_per_task,
-            demos_per_task=None,
-            policy_path=str(cfg.policy.path),
-            eval_episodes=len(evals),
-            eval_episodes_run=len(evals),
-            successes=successes,
-            failures=len(evals) - successes,
-            demos_added=len(demos),
-            corrections=sum("start_step" in d for d in demos),
-            demo_frames=sum(d["steps"] for d in demos),
-            expert_failures=len(journal.expert_failures(task)),
-            cap_hit=len(demos) >= cfg.max_demos_per_task,
-            eval_bound_hit=len(evals) >= max_evals and successes < cfg.target_successes,
-            eval_env_steps=sum(e["steps"] for e in evals),
-            collection_env_steps=sum(d["steps"] for d in demos),
-            wall_seconds=round(policy_s + demo_s, 1),
-            extra={
-                "robot": self.robot.robot_type,
-                "teleop": cfg.teleop.type,
-                "person_seconds": {"policy_episodes": round(policy_s, 1), "demonstrations": round(demo_s, 1)},
-            },
-        )
+        record.policy_path = str(self.cfg.policy.path)
+        record.eval_episodes_run = len(evals)
+        record.eval_env_steps = sum(e["steps"] for e in evals)
+        record.wall_seconds = round(policy_s + demo_s, 1)
+        record.extra = {
+            "robot": self.robot.robot_type,
+            "teleop": self.cfg.teleop.type,
+            "person_seconds": {"policy_episodes": round(policy_s, 1), "demonstrations": round(demo_s, 1)},
+        }
+        return record
+
+
+class PersonRound:
+    """The round context Algorithm 1's inner loop (`collect_on_failed_states`) talks to, with a person and a robot
+    behind it. Evaluating a state is a policy episode the person judges, or takes over (its correction is
+    recorded at once, while the robot is where the person took over); a demonstration is the person's, from the
+    failed episode's start, or that correction. Everything is journaled first: after a stop, the loop runs again
+    over the same states and reuses what was done."""
+
+    batch_size = 1  # one robot, one episode at a time
+
+    def __init__(self, session: Session):
+        self.session, self.journal = session, session.journal
+        self.seed, self.round_index = session.cfg.seed, session.round_index
+        self._corrections: dict[int, tuple[Demonstration | None, float]] = {}
+
+    def new_record(self, task: str, strategy: str, target_successes: int, cap: int) -> TaskRoundRecord:
+        return TaskRoundRecord(self.round_index, task, strategy, target_successes, cap, None, None)
+
+    def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
+        outcomes = []
+        for seed in seeds:
+            entry = self.journal.evaluations(task).get(seed)
+            if entry is None:
+                entry = self.session.policy_episode(task, seed)
+                self.journal.append(entry)  # first: a stop during the correction leaves a failure to answer
+                if "takeover_step" in entry:
+                    self._corrections[seed] = self.session.correction(task, entry)
+            outcomes.append(Outcome(seed, bool(entry["success"])))
+        return outcomes
+
+    def ask_expert(self, task: str, seeds: list[int]) -> None:
+        """A person does one demonstration at a time, when asked (`collect_demo`)."""
+
+    def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
+        demos, gave_up = self.journal.demos(task), self.journal.expert_failures(task)
+        if seed not in demos and seed not in gave_up:  # not answered yet (also after a stop)
+            failed = self.journal.evaluations(task)[seed]
+            if seed in self._corrections:
+                demo, seconds = self._corrections.pop(seed)
+                self.session.store_answer(task, failed, demo, 1, seconds)
+            else:  # from the episode's start (a correction a stop interrupted too: the robot has moved since)
+                self.session.store_answer(task, failed, *self.session.demonstration(task, failed))
+        if seed in demos:
+            entry = demos[seed]
+            record.demos_added += 1
+            record.collection_env_steps += entry["steps"]
+            record.demo_frames += entry["steps"]
+            record.corrections += "start_step" in entry
+            return True
+        record.expert_failures += 1
+        return False
+
+    def progress(self, task: str, record: TaskRoundRecord) -> None:
+        pass
 
 
 def slug(text: str) -> str:

@@ -14,17 +14,14 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+import pandas as pd
+from matplotlib.figure import Figure  # no pyplot: drawing into a file needs no GUI backend, and sets none
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from adademo_lerobot.configs import ReportConfig  # noqa: E402
-from adademo_lerobot.dataset.metadata import read_episode_metadata  # noqa: E402
-from adademo_lerobot.errors import AdaDemoError  # noqa: E402
-from adademo_lerobot.ledger import read_ledger  # noqa: E402
-from adademo_lerobot.tables import table  # noqa: E402
+from adademo_lerobot.configs import ReportConfig
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.ledger import read_ledger
+from adademo_lerobot.tables import table
 
 
 @dataclass
@@ -36,6 +33,9 @@ class RunResults:
     demos: pd.DataFrame  # index task, columns round -> cumulative demos after that round
     ledger: pd.DataFrame
     started_from: str = ""  # where a run that began from the user's dataset/checkpoint started
+    run_dir: Path | None = None
+    dataset_root: Path | None = None
+    base_round: int = 0
 
     def added_cost(self) -> pd.DataFrame:
         """Per round (rows, from 0), what the expansion rounds added up to then, per task on average."""
@@ -102,7 +102,9 @@ def load_run(run_dir: Path) -> RunResults:
     if len(ledger):
         ledger = ledger[ledger["round"] > base].assign(round=lambda d: d["round"] - base)
     corrections = " + takeover corrections" if settings.get("demo_start") == "takeover" else ""
-    label = f"{settings['strategy']}{corrections} + {settings['sampler']} sampler"
+    strategy = settings["strategy"]  # its config (a name in runs of release 0.2)
+    name = strategy["type"] if isinstance(strategy, dict) else strategy
+    label = f"{name}{corrections} + {settings['sampler']} sampler"
     return RunResults(
         run_dir.name,
         label,
@@ -111,6 +113,9 @@ def load_run(run_dir: Path) -> RunResults:
         demos,
         ledger,
         describe_start(begun),
+        run_dir,
+        dataset_root,
+        base,
     )
 
 
@@ -226,6 +231,36 @@ def cost_lines(run: RunResults, ledger: pd.DataFrame) -> list[str]:
     ]
 
 
+def failure_lines(run: RunResults, out_dir: Path) -> list[str]:
+    """Will AdaDemo help here? Per task, how well the initial state predicts failure, and the failure map."""
+    from adademo_lerobot.failure_map import plot_failure_map, run_predictability
+
+    results, by_round = run_predictability(run.run_dir, run.dataset_root, run.tasks, run.base_round)
+    if not by_round:
+        return []
+    plot_failure_map(by_round, run.tasks, out_dir / f"failure_map_{run.name}.png")
+    rows = [
+        [
+            r.task,
+            r.states,
+            r.failures,
+            "-" if r.auc is None else f"{r.auc:.2f} [{r.low:.2f}, {r.high:.2f}]",
+            r.reading,
+        ]
+        for r in results
+    ]
+    return [
+        "Will AdaDemo help on these tasks? How well a task's initial state predicts the policy's failure (AUC of a "
+        "cross-validated 5-nearest-neighbour vote over the initial states each policy was evaluated on; 0.5 is "
+        "chance; 95 % interval):",
+        "",
+        table(["task", "states", "failures", "AUC", "reading"], rows, aligned=False),
+        "",
+        f"![failure map](failure_map_{run.name}.png)",
+        "",
+    ]
+
+
 def allocation_lines(ledger: pd.DataFrame) -> list[str]:
     """Per round and task, what was planned and what was done, and (budgeted) the success estimate before and
     after the round's evaluations."""
@@ -254,7 +289,8 @@ def allocation_lines(ledger: pd.DataFrame) -> list[str]:
 
 
 def plot_success_vs_demos(runs: list[RunResults], path: Path) -> None:
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
     for run in runs:
         x = [run.demos[r].mean() for r in run.success.columns]
         y = [100 * run.success.loc["average", r] for r in run.success.columns]
@@ -266,13 +302,13 @@ def plot_success_vs_demos(runs: list[RunResults], path: Path) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def plot_success_vs_cost(runs: list[RunResults], path: Path) -> None:
     """Average success against what the rounds added per task: demonstrations, expert frames, episodes."""
     measures = ["demonstrations", "expert frames", "episodes"]
-    fig, axes = plt.subplots(1, len(measures), figsize=(5 * len(measures), 4), sharey=True)
+    fig = Figure(figsize=(5 * len(measures), 4))
+    axes = fig.subplots(1, len(measures), sharey=True)
     for ax, measure in zip(axes, measures, strict=True):
         for run in runs:
             added = run.added_cost()
@@ -284,7 +320,6 @@ def plot_success_vs_cost(runs: list[RunResults], path: Path) -> None:
     fig.suptitle("Success against each cost (episodes: demonstrations + evaluation episodes)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def plot_allocation(run: RunResults, path: Path) -> None:
@@ -292,7 +327,8 @@ def plot_allocation(run: RunResults, path: Path) -> None:
     new = run.demos.diff(axis=1)
     new[rounds[0]] = run.demos[rounds[0]]
     new = new.astype(int)
-    fig, ax = plt.subplots(figsize=(max(6, len(run.tasks) * 0.9), 4))
+    fig = Figure(figsize=(max(6, len(run.tasks) * 0.9), 4))
+    ax = fig.subplots()
     bottom = pd.Series(0, index=run.tasks)
     for r in rounds:
         ax.bar(run.tasks, new[r], bottom=bottom, label="initial" if r == 0 else f"round {r}")
@@ -303,11 +339,11 @@ def plot_allocation(run: RunResults, path: Path) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def plot_per_task_success(run: RunResults, path: Path) -> None:
-    fig, ax = plt.subplots(figsize=(max(6, len(run.tasks) * 0.9), 4))
+    fig = Figure(figsize=(max(6, len(run.tasks) * 0.9), 4))
+    ax = fig.subplots()
     rounds = list(run.success.columns)
     width = 0.8 / len(rounds)
     for k, r in enumerate(rounds):
@@ -324,11 +360,11 @@ def plot_per_task_success(run: RunResults, path: Path) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def plot_eval_cost(runs: list[RunResults], path: Path) -> None:
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
     labels, evals, collects = [], [], []
     for run in runs:
         for r, g in run.ledger.groupby("round") if len(run.ledger) else []:
@@ -343,7 +379,6 @@ def plot_eval_cost(runs: list[RunResults], path: Path) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def write_report(run_dirs: list[Path], out_dir: Path) -> Path:
@@ -383,6 +418,7 @@ def write_report(run_dirs: list[Path], out_dir: Path) -> Path:
             "",
             f"![allocation](allocation_{run.name}.png) ![per-task success](success_{run.name}.png)",
             "",
+            *failure_lines(run, out_dir),
         ]
     sections += ["## Evaluation cost", "", "![evaluation cost](eval_cost.png)", ""]
     path = out_dir / "report.md"

@@ -1,7 +1,7 @@
 """`adademo-run`: the whole of Algorithm 1 as one resumable command driven by a recipe.
 
     collect D_0 (E0 demos per task) -> train pi_0 -> evaluate on the fixed evaluation set
-    for round i = 1..R:  expand (strategy, E_i, CAP_i) -> retrain (from scratch or fine-tune) -> evaluate
+    for round i = 1..R:  expand (the strategy's round i) -> retrain (from scratch or fine-tune) -> evaluate
     report
 
 With `--dataset.repo_id` (and optionally `--policy.path`) the run starts from what the user has instead: their
@@ -41,7 +41,7 @@ from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.evaluation import format_success_table, success_table, write_eval_outputs
-from adademo_lerobot.executors import RayArgs, check_executor_args, make_executor
+from adademo_lerobot.executors import ExecutionArgs, make_executor
 from adademo_lerobot.expand import next_round, run_expand
 from adademo_lerobot.files import atomic_write_text, exclusive_use
 from adademo_lerobot.fixed_set import evaluate_fixed_set
@@ -56,9 +56,9 @@ from adademo_lerobot.start import (
     combined_digest,
     prepare_dataset,
 )
-from adademo_lerobot.strategies import STRATEGIES, make_strategy
-from adademo_lerobot.suites import SuiteConfig, make_suite, suite_config_from_dict
-from adademo_lerobot.takeover import TakeoverArgs, check_demo_start
+from adademo_lerobot.strategies import StrategyConfig, default_strategy
+from adademo_lerobot.suites import SuiteConfig, TaskSuite, make_suite, suite_config_from_dict
+from adademo_lerobot.takeover import TakeoverArgs
 
 STEPS_SCHEDULES = ("constant", "proportional")
 
@@ -98,7 +98,7 @@ class RunEvalArgs:
 
 
 @dataclass
-class RunConfig:
+class RunConfig(ExecutionArgs):
     run_dir: str | None = None
     # Start from an existing dataset (no round-0 collection) and, optionally, checkpoint (no round-0 training).
     dataset: StartDatasetArgs = field(default_factory=StartDatasetArgs)
@@ -107,18 +107,10 @@ class RunConfig:
     collector: CollectorConfig = field(default_factory=default_collector)
     # E0: demos per task in the initial dataset.
     initial_demos_per_task: int = 10
-    strategy: str = "adademo"
+    # The expansion strategy and its per-round settings (--strategy.type=adademo|budgeted|uniform|task_only, then
+    # e.g. --strategy.target_successes=[5,10] or --strategy.budget=[32,48,64]; a single value serves every round).
+    strategy: StrategyConfig = field(default_factory=default_strategy)
     rounds: int = 2
-    # Per round i = 1..R (the last value repeats if the list is shorter): E_i, CAP_i and Uniform's N_i.
-    # E_i (default 10); leave empty with `budget`, which then picks E (adademo, task_only).
-    target_successes: list[int] = field(default_factory=list)
-    max_demos_per_task: list[int] = field(default_factory=lambda: [50])
-    demos_per_task: list[int] = field(default_factory=lambda: [10])
-    # B_i: demos per round (the budgeted strategy spends exactly B_i; uniform splits it evenly).
-    budget: list[int] = field(default_factory=list)
-    # budgeted: weight of an earlier round's evaluation outcomes per round since.
-    posterior_decay: float = 0.5
-    plan_episodes_per_task: int = 20
     # Where a demonstration starts: `initial` (the failed episode's initial state: the paper) or `takeover` (a
     # correction: the expert takes over the failed rollout at the step `--takeover.*` picks).
     demo_start: str = "initial"
@@ -126,11 +118,7 @@ class RunConfig:
     seed: int = 0
     train: RunTrainArgs = field(default_factory=RunTrainArgs)
     eval: RunEvalArgs = field(default_factory=RunEvalArgs)
-    device: str = "cpu"
     commit_every: int = 10
-    # Where the episodes of collection, expansion and evaluation run: `local` (this process) or `ray`.
-    executor: str = "local"
-    ray: RayArgs = field(default_factory=RayArgs)
     # Push the final dataset to the hub as hub_repo_id (token from HF_TOKEN or your login).
     push_to_hub: bool = False
     hub_repo_id: str | None = None
@@ -140,29 +128,9 @@ class RunConfig:
         """Checks of the flags alone (answered before LeRobot is imported: `adademo_lerobot.cli`)."""
         if self.run_dir is None:
             raise AdaDemoError("--run_dir is required (everything of the run goes there)")
-        if self.strategy not in STRATEGIES:
-            raise AdaDemoError(f"unknown --strategy={self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
         if self.rounds < 0 or self.initial_demos_per_task < 1:
             raise AdaDemoError("--rounds must be >= 0 and --initial_demos_per_task >= 1")
-        for name in ("target_successes", "max_demos_per_task", "demos_per_task", "budget"):
-            values = getattr(self, name)
-            optional = name in ("target_successes", "budget")
-            if (not values and not optional) or (values and min(values) < 1):
-                raise AdaDemoError(f"--{name} needs one or more values >= 1 (one per round), got {values}")
-        if self.budget and self.target_successes:
-            raise AdaDemoError(
-                f"--budget={self.budget} and --target_successes={self.target_successes} both set the rounds' "
-                "size: pass one (with a budget, E is picked to fit it)"
-            )
-        if self.strategy == "budgeted" and not self.budget:
-            raise AdaDemoError("--strategy=budgeted needs --budget=[B1,B2,...] (demonstrations per round)")
-        check_demo_start(self.demo_start, self.takeover)
-        if self.demo_start == "takeover" and not make_strategy(self.strategy).collects_at_failed_states:
-            raise AdaDemoError(
-                f"--demo_start=takeover corrects failed policy rollouts; --strategy={self.strategy} collects from "
-                "fresh initial states without evaluating: use --strategy=adademo or budgeted, or "
-                "--demo_start=initial"
-            )
+        self.expand_config(1).validate(one_round=False)  # the strategy, demo start and execution flags
         if self.dataset.root is not None and self.dataset.repo_id is None:
             self.dataset.repo_id = f"local/{Path(self.dataset.root).name}"
         if self.policy.path is not None and self.dataset.repo_id is None:
@@ -181,12 +149,26 @@ class RunConfig:
             )
         if self.push_to_hub and not self.hub_repo_id:
             raise AdaDemoError("--push_to_hub=true needs --hub_repo_id=USER/NAME")
-        check_executor_args(self.executor, self.ray)
         self.train.validate()
 
-
-def per_round(values: list[int], i: int) -> int:
-    return values[min(i, len(values)) - 1]
+    def expand_config(self, i: int, dataset_root: Path | None = None, repo_id: str = "", checkpoint=None):
+        """Round i's expansion, as adademo-expand would run it (the strategy's round-i values are picked by
+        `run_expand`)."""
+        return ExpandConfig(
+            device=self.device,
+            torch_threads=self.torch_threads,
+            executor=self.executor,
+            ray=self.ray,
+            dataset=DatasetArgs(repo_id=repo_id, root=None if dataset_root is None else str(dataset_root)),
+            policy=PolicyPathArgs(path=None if checkpoint is None else str(checkpoint)),
+            strategy=self.strategy,
+            seed=self.seed,
+            collector=self.collector,
+            demo_start=self.demo_start,
+            takeover=self.takeover,
+            eval=EvalBatchArgs(batch_size=self.eval.batch_size),
+            commit_every=self.commit_every,
+        )
 
 
 class RunState:
@@ -219,16 +201,16 @@ class RunState:
         atomic_write_text(self.path, json.dumps({"settings": self.settings, "done": self.done}, indent=2))
 
     def stage(self, name: str, fn, *args):
-        """Run `fn(*args)` unless the stage already finished; remember its (JSON) result."""
+        """`fn(*args)`, unless an earlier invocation finished the stage: then its remembered (JSON) result."""
         if name in self.done:
             print(f"[done] {name}")
-            return self.done[name]
+            return self.done[name]["result"]
         print(f"[run]  {name}")
         start = time.perf_counter()
         result = fn(*args)
         self.done[name] = {"result": result, "seconds": round(time.perf_counter() - start, 1)}
         self._save()
-        return self.done[name]
+        return result
 
 
 # Settings whose change would make a resumed run a different experiment.
@@ -238,10 +220,6 @@ FIXED_SETTINGS = (
     "initial_demos_per_task",
     "seed",
     "eval",
-    "target_successes",
-    "max_demos_per_task",
-    "demos_per_task",
-    "budget",
     "sampler_alpha",
     "sampler",
     "policy_type",
@@ -258,15 +236,11 @@ def run_settings(cfg: RunConfig, suite: dict) -> dict:
     """What defines the run, kept in run_state.json (FIXED_SETTINGS among them must not change on resume)."""
     return {
         "suite": suite,
-        "strategy": cfg.strategy,
+        "strategy": cfg.strategy.to_dict(),
         "rounds": cfg.rounds,
         "initial_demos_per_task": cfg.initial_demos_per_task,
         "seed": cfg.seed,
         "eval": {"episodes_per_task": cfg.eval.episodes_per_task, "seed": cfg.eval.seed},
-        "target_successes": cfg.target_successes,
-        "max_demos_per_task": cfg.max_demos_per_task,
-        "demos_per_task": cfg.demos_per_task,
-        "budget": cfg.budget,
         "sampler": cfg.train.sampler,
         "policy_type": cfg.train.policy.type if cfg.train.policy else None,
         "train_mode": cfg.train.mode,
@@ -293,11 +267,57 @@ def saved_stage(run_dir: Path, name: str) -> dict | None:
     return {**state["done"][name], "settings": state["settings"]} if name in state["done"] else None
 
 
+@dataclass
+class RunData:
+    """The run's dataset, the last round of its history before the run, and the user's checkpoint (if any)."""
+
+    root: Path
+    repo_id: str
+    base_round: int
+    checkpoint: Path | None
+
+    @classmethod
+    def of_stage(cls, result: dict) -> RunData:
+        checkpoint = result["checkpoint"]
+        return cls(
+            Path(result["dataset_root"]),
+            result["repo_id"],
+            result["base_round"],
+            checkpoint and Path(checkpoint),
+        )
+
+
 def run(cfg: RunConfig) -> Path:
+    """Algorithm 1 end to end. Every stage is run through `state.stage`, which skips a stage a previous
+    invocation finished (and returns its result): rerunning the command resumes."""
     cfg.validate()
     run_dir = Path(cfg.run_dir)
+    suite, start = checked_suite_and_start(cfg, run_dir)  # everything refused before anything is written
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with exclusive_use(run_dir, "adademo-run"), Episodes(cfg, suite) as episodes:
+        state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()))
+        first = "start" if cfg.dataset.repo_id is not None else "collect"  # the user's data, or collected
+        data = RunData.of_stage(state.stage(first, initial_data, cfg, suite, episodes, run_dir, start))
+        checkpoint = data.checkpoint or Path(state.stage("train-0", train_round, cfg, run_dir, data, 0))
+        state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
+        for i in range(1, cfg.rounds + 1):
+            state.stage(f"expand-{i}", expand_round, cfg, episodes, data, checkpoint, i)
+            checkpoint = Path(state.stage(f"train-{i}", train_round, cfg, run_dir, data, i, checkpoint))
+            state.stage(f"eval-{i}", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, i)
+        from adademo_lerobot.report import write_report
+
+        report = write_report([run_dir], run_dir / "report")
+        if cfg.push_to_hub:
+            state.stage("push", push, cfg, data.root, data.repo_id)
+    print(f"run complete: {run_dir} (report: {report})")
+    return run_dir
+
+
+def checked_suite_and_start(cfg: RunConfig, run_dir: Path) -> tuple[TaskSuite, Start | None]:
+    """The run's suite and, for a run that starts from the user's dataset and checkpoint, where it starts: all
+    checked before the run folder is made. A resumed run keeps the suite it started with."""
     start, started = None, saved_stage(run_dir, "start")
-    if cfg.dataset.repo_id is not None and started is None:  # checked before anything is written
+    if cfg.dataset.repo_id is not None and started is None:
         start = check_start(
             cfg.dataset,
             cfg.policy,
@@ -318,87 +338,54 @@ def run(cfg: RunConfig) -> Path:
     make_sampling_scheme(
         cfg.train.sampler, cfg.train.min_task_weight, len(suite.tasks), cfg.train.sampler_alpha
     )
-    run_dir.mkdir(parents=True, exist_ok=True)
-    with exclusive_use(run_dir, "adademo-run"):  # one command at a time in a run folder
-        state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()))
-        episodes = Episodes(
-            cfg, suite
-        )  # the executor, made when a stage first needs it, kept for the whole run
-        try:
-            if cfg.dataset.repo_id is None:
-                dataset_root, repo_id, base, checkpoint = (
-                    run_dir / "dataset",
-                    f"local/{run_dir.name}",
-                    0,
-                    None,
-                )
-                state.stage("collect", collect_initial, cfg, suite, episodes, dataset_root, repo_id)
-            else:
-                begun = state.stage("start", begin_from, cfg, start, run_dir)["result"]
-                dataset_root, repo_id, base = (
-                    Path(begun["dataset_root"]),
-                    cfg.dataset.repo_id,
-                    begun["base_round"],
-                )
-                checkpoint = Path(begun["checkpoint"]) if begun["checkpoint"] else None
-                # No policy in the recipe: later rounds train the checkpoint's own.
-                if cfg.train.policy is None:
-                    from lerobot.configs.policies import PreTrainedConfig
+    if cfg.train.policy is None and started is not None and started["result"]["checkpoint"]:
+        set_policy_from_checkpoint(cfg, Path(started["result"]["checkpoint"]))
+    elif cfg.train.policy is None and start is not None:
+        set_policy_from_checkpoint(cfg, start.checkpoint)
+    return suite, start
 
-                    cfg.train.policy = PreTrainedConfig.from_pretrained(checkpoint)
-                    cfg.train.policy.pretrained_path = None
-            if checkpoint is None:
-                checkpoint = Path(
-                    state.stage("train-0", train_round, cfg, run_dir, dataset_root, repo_id, 0, None, base)[
-                        "result"
-                    ]
-                )
-            state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
-            for i in range(1, cfg.rounds + 1):
-                state.stage(
-                    f"expand-{i}", expand_round, cfg, episodes, dataset_root, repo_id, checkpoint, i, base
-                )
-                checkpoint = Path(
-                    state.stage(
-                        f"train-{i}", train_round, cfg, run_dir, dataset_root, repo_id, i, checkpoint, base
-                    )["result"]
-                )
-                state.stage(f"eval-{i}", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, i)
-        finally:
-            episodes.close()
 
-        from adademo_lerobot.report import write_report
+def set_policy_from_checkpoint(cfg: RunConfig, checkpoint: Path) -> None:
+    """No policy in the recipe: later rounds train the checkpoint's own architecture (from scratch, or from the
+    previous round with finetune)."""
+    from lerobot.configs.policies import PreTrainedConfig
 
-        report = write_report([run_dir], run_dir / "report")
-        if cfg.push_to_hub:
-            state.stage("push", push, cfg, dataset_root, repo_id)
-    print(f"run complete: {run_dir} (report: {report})")
-    return run_dir
+    cfg.train.policy = PreTrainedConfig.from_pretrained(checkpoint)
+    cfg.train.policy.pretrained_path = None
 
 
 class Episodes:
-    """The run's executor, made on first use (a resumed run that only trains starts no Ray)."""
+    """The run's executor, made on first use (a resumed run that only trains starts no Ray), closed at the end."""
 
     def __init__(self, cfg: RunConfig, suite):
         self.cfg, self.suite, self._executor = cfg, suite, None
 
     def get(self):
         if self._executor is None:
-            cfg = self.cfg
-            self._executor = make_executor(
-                cfg.executor,
-                cfg.ray,
-                self.suite,
-                cfg.collector,
-                cfg.eval.batch_size,
-                cfg.device,
-                cfg.train.torch_threads,
-            )
+            self._executor = make_executor(self.cfg, self.suite, self.cfg.collector, self.cfg.eval.batch_size)
         return self._executor
 
-    def close(self) -> None:
+    def __enter__(self) -> Episodes:
+        return self
+
+    def __exit__(self, *exc) -> None:
         if self._executor is not None:
             self._executor.close()
+
+
+def initial_data(cfg: RunConfig, suite, episodes: Episodes, run_dir: Path, start: Start | None) -> dict:
+    """Round 0's data: the user's dataset (and checkpoint), or demonstrations collected by the expert."""
+    if cfg.dataset.repo_id is not None:
+        return begin_from(cfg, start, run_dir)
+    root, repo_id = run_dir / "dataset", f"local/{run_dir.name}"
+    demos = collect_initial(cfg, suite, episodes, root, repo_id)
+    return {
+        "dataset_root": str(root),
+        "repo_id": repo_id,
+        "base_round": 0,
+        "checkpoint": None,
+        "demos": demos,
+    }
 
 
 def begin_from(cfg: RunConfig, start: Start, run_dir: Path) -> dict:
@@ -417,6 +404,7 @@ def begin_from(cfg: RunConfig, start: Start, run_dir: Path) -> dict:
     )
     return {
         "dataset_root": str(root),
+        "repo_id": cfg.dataset.repo_id,
         "base_round": base,
         "checkpoint": str(start.checkpoint) if start.checkpoint else None,
         "origin": {k: v for k, v in origin.items() if k != "files"},
@@ -437,17 +425,9 @@ def collect_initial(cfg: RunConfig, suite, episodes: Episodes, dataset_root: Pat
     return {t: r.demos_added for t, r in records.items()}
 
 
-def train_round(
-    cfg: RunConfig,
-    run_dir: Path,
-    dataset_root: Path,
-    repo_id: str,
-    i: int,
-    previous: Path | None,
-    base: int = 0,
-) -> str:
-    """Round i's policy; `base`: the last round of the dataset's history before the run (its size sets the
-    proportional schedule)."""
+def train_round(cfg: RunConfig, run_dir: Path, data: RunData, i: int, previous: Path | None = None) -> str:
+    """Round i's policy: from scratch, or (finetune) from the previous round's checkpoint `previous`. The
+    proportional schedule counts steps against the data of round 0 (the dataset's history before the run)."""
     from lerobot.configs.policies import PreTrainedConfig
 
     from adademo_lerobot.train import AdaDemoTrainConfig, TrainDatasetConfig, find_last_checkpoint, train
@@ -465,11 +445,11 @@ def train_round(
         policy.device = cfg.device
         steps = cfg.train.finetune_steps
     elif i > 0 and cfg.train.steps_schedule == "proportional":
-        eps = read_episode_metadata(dataset_root)
-        initial = int((eps["adademo/round"] <= base).sum())
+        eps = read_episode_metadata(data.root)
+        initial = int((eps["adademo/round"] <= data.base_round).sum())
         steps = min(cfg.train.max_steps, round(cfg.train.steps * len(eps) / max(initial, 1)))
     train_cfg = AdaDemoTrainConfig(
-        dataset=TrainDatasetConfig(repo_id=repo_id, root=str(dataset_root)),
+        dataset=TrainDatasetConfig(repo_id=data.repo_id, root=str(data.root)),
         policy=policy,
         output_dir=out,
         resume=resume,
@@ -477,7 +457,8 @@ def train_round(
         batch_size=cfg.train.batch_size,
         steps=steps,
         save_freq=min(cfg.train.save_freq, steps),
-        # the flags adademo-train shares with the recipe's train section (sampler, threads, schedule, ...)
+        torch_threads=cfg.torch_threads,
+        # the flags adademo-train shares with the recipe's train section (sampler, schedule, ...)
         **{f.name: getattr(cfg.train, f.name) for f in dataclasses.fields(TrainSamplingArgs)},
     )
     return str(train(train_cfg).resolve())
@@ -505,41 +486,15 @@ def evaluate_round(
     return {"average_success": float(table.success_rate.iloc[-1])}
 
 
-def expand_round(
-    cfg: RunConfig,
-    episodes: Episodes,
-    dataset_root: Path,
-    repo_id: str,
-    checkpoint: Path,
-    i: int,
-    base: int = 0,
-) -> dict:
+def expand_round(cfg: RunConfig, episodes: Episodes, data: RunData, checkpoint: Path, i: int) -> dict:
     """The run's expansion round i, the dataset's round base + i (after its earlier rounds): the one truth
     handed to `run_expand`."""
-    r = base + i
-    if r in ledger_rounds(dataset_root):  # killed after the round finished, before the run marked it done
-        eps = read_episode_metadata(dataset_root)
+    r = data.base_round + i
+    if r in ledger_rounds(data.root):  # killed after the round finished, before the run marked it done
+        eps = read_episode_metadata(data.root)
         return {"demos_added": eps[eps["adademo/round"] == r].groupby("task").size().astype(int).to_dict()}
-    expand_cfg = ExpandConfig(
-        dataset=DatasetArgs(repo_id=repo_id, root=str(dataset_root)),
-        policy=PolicyPathArgs(path=str(checkpoint)),
-        strategy=cfg.strategy,
-        target_successes=per_round(cfg.target_successes, i) if cfg.target_successes else None,
-        budget=per_round(cfg.budget, i) if cfg.budget else None,
-        posterior_decay=cfg.posterior_decay,
-        max_demos_per_task=per_round(cfg.max_demos_per_task, i),
-        demos_per_task=per_round(cfg.demos_per_task, i),
-        plan_episodes_per_task=cfg.plan_episodes_per_task,
-        seed=cfg.seed,
-        collector=cfg.collector,
-        demo_start=cfg.demo_start,
-        takeover=cfg.takeover,
-        eval=EvalBatchArgs(batch_size=cfg.eval.batch_size),
-        device=cfg.device,
-        torch_threads=cfg.train.torch_threads,
-        commit_every=cfg.commit_every,
-    )
-    records = run_expand(expand_cfg, round_index=r, executor=episodes.get())
+    expand_cfg = cfg.expand_config(i, data.root, data.repo_id, checkpoint)
+    records = run_expand(expand_cfg, round_in_run=i, round_index=r, executor=episodes.get())
     return {"demos_added": {r.task: r.demos_added for r in records}}
 
 

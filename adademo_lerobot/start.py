@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
-import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,9 +33,10 @@ from adademo_lerobot.dataset.metadata import (
 )
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.files import atomic_write_text
+from adademo_lerobot.hub import is_hub_repo_id
 from adademo_lerobot.suites import SuiteConfig, make_suite
 
-HUB_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[\w.-]+$")
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -94,7 +95,7 @@ def locate_dataset(args: StartDatasetArgs) -> tuple[Path, str | None]:
         if not has_dataset(root):
             raise AdaDemoError(f"no LeRobot dataset at --dataset.root={root} (missing meta/info.json)")
         return root.resolve(), None
-    if not HUB_ID.match(args.repo_id):
+    if not is_hub_repo_id(args.repo_id):
         raise AdaDemoError(
             f"--dataset.repo_id={args.repo_id!r} is not a hub id (user/name); for a local dataset also pass "
             "--dataset.root=FOLDER"
@@ -127,7 +128,7 @@ def locate_checkpoint(args: StartPolicyArgs) -> tuple[Path, str | None]:
     path = Path(args.path).expanduser()
     if path.exists():
         return path.resolve(), None
-    if not HUB_ID.match(args.path):
+    if not is_hub_repo_id(args.path):
         raise AdaDemoError(f"no checkpoint at --policy.path={args.path} (no such folder, and not a hub id)")
     from huggingface_hub import HfApi, snapshot_download
 
@@ -160,11 +161,8 @@ def file_digests(root: Path) -> dict[str, str]:
     """sha256 of every file under `root` (symlinks followed), by relative path."""
     digests = {}
     for path in sorted(p for p in root.rglob("*") if p.is_file()):
-        h = hashlib.sha256()
         with open(path, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
-        digests[str(path.relative_to(root))] = h.hexdigest()
+            digests[str(path.relative_to(root))] = hashlib.file_digest(f, "sha256").hexdigest()
     return digests
 
 
@@ -277,15 +275,20 @@ def prepare_dataset(start: Start, copy: bool, run_dataset: Path) -> tuple[Path, 
     if not copy or start.source_root == run_dataset.resolve():
         if not os.access(start.source_root, os.W_OK):
             raise AdaDemoError(f"dataset root {start.source_root} is not writable (--dataset.copy=false)")
-        print(f"expanding {start.source_root} in place (--dataset.copy=false): new episodes are added to it")
+        log.info(
+            "expanding %s in place (--dataset.copy=false): new episodes are added to it", start.source_root
+        )
         root = start.source_root
     else:
         tmp = run_dataset.with_name(f".{run_dataset.name}.copying")
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.copytree(start.source_root, tmp, ignore=shutil.ignore_patterns(".cache"))
         os.replace(tmp, run_dataset)
-        print(
-            f"copied {start.source_root} to {run_dataset} ({len(digests)} files); the original stays unchanged"
+        log.info(
+            "copied %s to %s (%d files); the original stays unchanged",
+            start.source_root,
+            run_dataset,
+            len(digests),
         )
         root = run_dataset
     if not (

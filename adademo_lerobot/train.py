@@ -8,7 +8,9 @@ few lines of the training loop that build the DataLoader around our `WeightedFra
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
+import logging
 import os
 import shutil
 import time
@@ -34,6 +36,7 @@ from adademo_lerobot.policy import POLICY_TYPES, check_checkpoint_folder, check_
 from adademo_lerobot.samplers import frame_weights, make_sampling_scheme
 from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 
+log = logging.getLogger(__name__)
 # Normalization floor: MetaWorld observations have constant dims (padding, unused objects); dividing by a
 # near-zero std turns float noise at evaluation time into huge inputs.
 MIN_STD = 1e-2
@@ -192,18 +195,11 @@ def save_whole_checkpoint(
     checkpoint_dir = get_step_checkpoint_dir(cfg.output_dir, cfg.steps, step)
     partial = checkpoint_dir.with_name(checkpoint_dir.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
-    save_checkpoint(
-        partial,
-        step,
-        cfg,
-        policy,
-        optimizer,
-        lr_scheduler,
-        preprocessor,
-        postprocessor,
-        num_processes=n,
-        batch_size=cfg.batch_size,
-    )
+    # LeRobot 0.6.1 records the process count and batch size in the training state; its next release no longer
+    # takes them: pass them only where they are accepted.
+    accepted = inspect.signature(save_checkpoint).parameters
+    extra = {k: v for k, v in {"num_processes": n, "batch_size": cfg.batch_size}.items() if k in accepted}
+    save_checkpoint(partial, step, cfg, policy, optimizer, lr_scheduler, preprocessor, postprocessor, **extra)
     (partial / "pretrained_model" / ADADEMO_TRAIN_INFO).write_text(json.dumps(info, indent=2))
     shutil.rmtree(checkpoint_dir, ignore_errors=True)
     os.replace(partial, checkpoint_dir)
@@ -211,15 +207,15 @@ def save_whole_checkpoint(
 
 
 def train(cfg: AdaDemoTrainConfig) -> Path:
-    """Train (or fine-tune, or resume) and return the last checkpoint's `pretrained_model` folder."""
+    """Train (or fine-tune, or resume) and return the last checkpoint's `pretrained_model` folder.
+
+    LeRobot's pieces throughout: its dataset, policy, processors, optimizer and scheduler, `update_policy` and
+    checkpoints. Ours are the weighted loader (principle C) and the few lines of loop around `update_policy`."""
     from accelerate import Accelerator
     from accelerate.utils import DistributedDataParallelKwargs
     from lerobot.common.train_utils import load_training_state
     from lerobot.datasets.factory import make_dataset
     from lerobot.optim.factory import make_optimizer_and_scheduler
-    from lerobot.policies.factory import make_policy, make_pre_post_processors
-    from lerobot.scripts.lerobot_train import update_policy
-    from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
     from lerobot.utils.random_utils import set_seed
 
     cfg.validate()
@@ -231,9 +227,6 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         raise AdaDemoError(f"no LeRobot dataset at {root}")
     recover_interrupted_write(root)
     episodes = read_episode_metadata(root)
-    suite_cfg = try_load_suite_config(
-        root
-    )  # training needs only LeRobot's format; the suite is recorded if known
     scheme = make_sampling_scheme(
         cfg.sampler, cfg.min_task_weight, episodes["task"].nunique(), cfg.sampler_alpha
     )
@@ -241,6 +234,44 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         set_seed(cfg.seed)  # before the model is built: the same seed gives the same initial weights
 
     dataset = make_dataset(cfg)
+    policy, preprocessor, postprocessor = build_policy(cfg, dataset)
+    optimizer, lr_scheduler = make_optimizer_and_scheduler(cfg, policy)
+    step = 0
+    if cfg.resume:
+        step, optimizer, lr_scheduler = load_training_state(cfg.checkpoint_path, optimizer, lr_scheduler)
+    if step >= cfg.steps:
+        log.info("training already finished at step %d (%s)", step, cfg.output_dir)
+        return cfg.output_dir / "checkpoints" / "last" / "pretrained_model"
+    accelerator = Accelerator(
+        cpu=policy.config.device == "cpu",
+        step_scheduler_with_optimizer=False,
+        kwargs_handlers=[DistributedDataParallelKwargs(find_unused_parameters=True)],
+    )
+    dataloader = weighted_loader(cfg, dataset, episodes, scheme, step, accelerator)
+    policy, optimizer, dataloader, lr_scheduler = accelerator.prepare(
+        policy, optimizer, dataloader, lr_scheduler
+    )
+    suite_cfg = try_load_suite_config(
+        root
+    )  # training needs only LeRobot's format; the suite is recorded if known
+    info = {
+        "sampler": cfg.sampler,
+        "min_task_weight": cfg.min_task_weight,
+        "sampler_alpha": cfg.sampler_alpha,
+        "episodes": int(len(episodes)),
+        "frames": int(dataset.num_frames),
+        "episodes_per_task": {k: int(v) for k, v in episodes["task"].value_counts().items()},
+        "suite": suite_cfg.to_dict() if suite_cfg else None,
+    }
+    parts = (policy, optimizer, lr_scheduler, preprocessor, postprocessor)
+    return training_loop(cfg, dataset, dataloader, parts, accelerator, step, info)
+
+
+def build_policy(cfg: AdaDemoTrainConfig, dataset):
+    """LeRobot's policy and processors for the dataset: normalized with the dataset's stats (with a floor on
+    near-constant features), or a checkpoint's own processors when resuming."""
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+
     if cfg.policy.pretrained_path is not None:
         check_policy_matches_features(cfg.policy, dataset.meta.features)
     low_dim = [
@@ -248,8 +279,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         for k, ft in dataset.meta.features.items()
         if k.startswith("observation") and ft["dtype"] == "float32"
     ]
-    low_dim.append("action")
-    stats = robust_stats(dataset.meta.stats, low_dim)
+    stats = robust_stats(dataset.meta.stats, [*low_dim, "action"])
     policy = make_policy(cfg=cfg.policy, ds_meta=dataset.meta)
     processor_kwargs: dict = {}
     if cfg.resume:
@@ -271,21 +301,14 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     preprocessor, postprocessor = make_pre_post_processors(
         policy_cfg=cfg.policy, pretrained_path=cfg.policy.pretrained_path, **processor_kwargs
     )
-    optimizer, lr_scheduler = make_optimizer_and_scheduler(cfg, policy)
-    step = 0
-    if cfg.resume:
-        step, optimizer, lr_scheduler = load_training_state(cfg.checkpoint_path, optimizer, lr_scheduler)
-    if step >= cfg.steps:
-        print(f"training already finished at step {step} ({cfg.output_dir})")
-        return cfg.output_dir / "checkpoints" / "last" / "pretrained_model"
+    return policy, preprocessor, postprocessor
 
+
+def weighted_loader(cfg: AdaDemoTrainConfig, dataset, episodes, scheme, step: int, accelerator):
+    """The DataLoader of principle C: frames drawn with the sampling scheme's episode weights, from where a
+    resumed run stopped, batches from memory for datasets without camera frames."""
     drop = int(getattr(cfg.policy, "drop_n_last_frames", 0) or 0)
     weights = frame_weights(scheme, episodes, dataset.num_frames, drop)
-    accelerator = Accelerator(
-        cpu=policy.config.device == "cpu",
-        step_scheduler_with_optimizer=False,
-        kwargs_handlers=[DistributedDataParallelKwargs(find_unused_parameters=True)],
-    )
     # Under `accelerate launch` every process iterates the same draws and keeps every n-th batch
     # (accelerate's BatchSamplerShard), so the sampler draws n times the samples and skips n times as many.
     n = accelerator.num_processes
@@ -306,7 +329,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
                 "persistent_workers": cfg.persistent_workers,
                 "multiprocessing_context": cfg.dataloader_multiprocessing_context,
             }
-    dataloader = torch.utils.data.DataLoader(
+    return torch.utils.data.DataLoader(
         frames,
         batch_size=cfg.batch_size,
         sampler=sampler,
@@ -314,9 +337,16 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         pin_memory=accelerator.device.type == "cuda",
         **loader_args,
     )
-    policy, optimizer, dataloader, lr_scheduler = accelerator.prepare(
-        policy, optimizer, dataloader, lr_scheduler
-    )
+
+
+def training_loop(
+    cfg: AdaDemoTrainConfig, dataset, dataloader, parts, accelerator, step: int, info: dict
+) -> Path:
+    """lerobot-train's loop around `update_policy` (metrics, wandb, checkpoints), for our loader."""
+    from lerobot.scripts.lerobot_train import update_policy
+    from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
+
+    policy, optimizer, lr_scheduler, preprocessor, postprocessor = parts
     metrics = {
         "loss": AverageMeter("loss", ":.3f"),
         "grad_norm": AverageMeter("grdn", ":.3f"),
@@ -332,15 +362,6 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         initial_step=step,
         accelerator=accelerator,
     )
-    info = {
-        "sampler": cfg.sampler,
-        "min_task_weight": cfg.min_task_weight,
-        "sampler_alpha": cfg.sampler_alpha,
-        "episodes": int(len(episodes)),
-        "frames": int(dataset.num_frames),
-        "episodes_per_task": {k: int(v) for k, v in episodes["task"].value_counts().items()},
-        "suite": suite_cfg.to_dict() if suite_cfg else None,
-    }
     wandb_logger = None
     if cfg.wandb.enable and cfg.wandb.project and accelerator.is_main_process:
         from lerobot.common.wandb_utils import WandBLogger
@@ -400,7 +421,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
                     preprocessor,
                     postprocessor,
                     info,
-                    n,
+                    accelerator.num_processes,
                 )
             accelerator.wait_for_everyone()
         if step >= cfg.steps:
@@ -408,8 +429,9 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         data_start = time.perf_counter()
     bar.close()
     elapsed = time.perf_counter() - start
-    print(
-        f"trained {step - start_step} steps in {elapsed:.1f} s ({(step - start_step) / max(elapsed, 1e-9):.1f} steps/s); "
-        f"checkpoint: {cfg.output_dir / 'checkpoints' / 'last' / 'pretrained_model'}"
-    )
+    log.info(
+        "trained %d steps in %.1f s (%.1f steps/s); checkpoint: %s",
+        step - start_step, elapsed, (step - start_step) / max(elapsed, 1e-9),
+        cfg.output_dir / "checkpoints" / "last" / "pretrained_model",
+    )  # fmt: skip
     return cfg.output_dir / "checkpoints" / "last" / "pretrained_model"

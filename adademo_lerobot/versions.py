@@ -18,16 +18,6 @@ class UnsupportedEnvironmentError(ImportError):
     """Python or LeRobot outside the supported range."""
 
 
-def _release(version: str) -> tuple[int, ...]:
-    parts = []
-    for piece in version.split("."):
-        digits = "".join(c for c in piece if c.isdigit()) if piece[:1].isdigit() else ""
-        if not digits:
-            break
-        parts.append(int(digits))
-    return tuple(parts)
-
-
 def check_supported_versions() -> None:
     fix = "install it into a fresh virtualenv as README says (`bash setup.sh quickstart`)"
     if sys.version_info[:2] < PYTHON_MIN:
@@ -41,7 +31,12 @@ def check_supported_versions() -> None:
         raise UnsupportedEnvironmentError(
             f"adademo-lerobot needs LeRobot, which is not installed: {fix}"
         ) from None
-    release = _release(found)
+    from packaging.version import InvalidVersion, Version
+
+    try:
+        release = Version(found).release
+    except InvalidVersion:
+        release = ()
     if not LEROBOT_MIN <= release < LEROBOT_BELOW:
         raise UnsupportedEnvironmentError(
             f"adademo-lerobot needs LeRobot >= {'.'.join(map(str, LEROBOT_MIN))}, < "

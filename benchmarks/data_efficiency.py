@@ -18,11 +18,11 @@ different machines combine, and anyone can regenerate the results from the commi
 The recipe is `recipes/budgeted.yaml`: its tasks, budgets, CAPs, model and training regime are the ones this
 benchmark chose (select, noise); the arms differ only in strategy and sampler:
 
-    uniform            --strategy=uniform   (the budget split evenly: exactly B_i demos per round)
-    adademo            --strategy=adademo   (the paper's: E picked by --budget, at most B_i), trajectory sampler
-    adademo_tempered   --strategy=adademo   + --train.sampler=tempered --train.sampler_alpha=0.5
-    budgeted_tempered  --strategy=budgeted  (exactly B_i) + tempered sampler
-    budgeted           --strategy=budgeted  + trajectory sampler (which sampler suits the budget strategy)
+    uniform            --strategy.type=uniform   (the budget split evenly: exactly B_i demos per round)
+    adademo            --strategy.type=adademo   (the paper's: E picked by --budget, at most B_i), trajectory sampler
+    adademo_tempered   --strategy.type=adademo   + --train.sampler=tempered --train.sampler_alpha=0.5
+    budgeted_tempered  --strategy.type=budgeted  (exactly B_i) + tempered sampler
+    budgeted           --strategy.type=budgeted  + trajectory sampler (which sampler suits the budget strategy)
 
 Per seed all arms branch from one shared round 0 (dataset, policy, evaluation), train each round from scratch with
 the same training seed, and are evaluated on the same fixed initial states (50 per task): comparisons are paired.
@@ -55,15 +55,24 @@ TAKEOVER = ["--demo_start=takeover", "--takeover.backoff=10"]
 DISAGREEMENT = ["--takeover.rule=disagreement", "--takeover.threshold=1.5", "--takeover.consecutive=5"]
 BACKOFF = ["--takeover.rule=backoff", "--takeover.stall_tolerance=0.01"]
 ALL_ARMS = {
-    "uniform": ["--strategy=uniform", "--train.sampler=trajectory"],
-    "adademo": ["--strategy=adademo", "--train.sampler=trajectory"],
-    "adademo_tempered": ["--strategy=adademo", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
-    "budgeted_tempered": ["--strategy=budgeted", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
-    "budgeted": ["--strategy=budgeted", "--train.sampler=trajectory"],
+    "uniform": ["--strategy.type=uniform", "--train.sampler=trajectory"],
+    "adademo": ["--strategy.type=adademo", "--train.sampler=trajectory"],
+    "adademo_tempered": ["--strategy.type=adademo", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
+    "budgeted_tempered": [
+        "--strategy.type=budgeted",
+        "--train.sampler=tempered",
+        "--train.sampler_alpha=0.5",
+    ],
+    "budgeted": ["--strategy.type=budgeted", "--train.sampler=trajectory"],
     # Corrections from the point of failure (--demo_start=takeover), with either rule (the default chosen here).
-    "budgeted_takeover": ["--strategy=budgeted", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
-    "adademo_takeover": ["--strategy=adademo", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
-    "budgeted_takeover_backoff": ["--strategy=budgeted", "--train.sampler=trajectory", *TAKEOVER, *BACKOFF],
+    "budgeted_takeover": ["--strategy.type=budgeted", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
+    "adademo_takeover": ["--strategy.type=adademo", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
+    "budgeted_takeover_backoff": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        *TAKEOVER,
+        *BACKOFF,
+    ],
 }
 LABELS = {
     "uniform": "Uniform",
@@ -365,7 +374,7 @@ def main() -> None:
     SUMMARIES = RESULTS / args.summaries
     SUMMARIES.mkdir(parents=True, exist_ok=True)
     if args.torch_threads is not None:
-        TORCH_THREADS.append(f"--train.torch_threads={args.torch_threads}")
+        TORCH_THREADS.append(f"--torch_threads={args.torch_threads}")
         os.environ["OMP_NUM_THREADS"] = str(args.torch_threads)
     if args.phase == "select":
         phase_select(args.out, args.candidates, args.name)

@@ -108,7 +108,7 @@ def main() -> None:
 
     torch.set_num_threads(1)
     from adademo_lerobot.collectors import ScriptedCollectorConfig
-    from adademo_lerobot.executors import LocalExecutor, RayArgs, make_executor
+    from adademo_lerobot.executors import ExecutionArgs, LocalExecutor, RayArgs, make_executor
     from adademo_lerobot.suites import MetaWorldSuiteConfig, make_suite
 
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS), max_episode_steps=200))
@@ -126,9 +126,8 @@ def main() -> None:
         fixed = {}
         for workers in (1, 2):
             start = time.perf_counter()
-            ray = make_executor(
-                "ray", RayArgs(num_workers=workers), suite, ScriptedCollectorConfig(), 10, "cpu", 1
-            )
+            execution = ExecutionArgs(torch_threads=1, executor="ray", ray=RayArgs(num_workers=workers))
+            ray = make_executor(execution, suite, ScriptedCollectorConfig(), 10)
             ray.use_policy(ckpt)
             fixed[workers] = time.perf_counter() - start
             result = run_units(ray, suite, ckpt, args.episodes, args.demos, seed=1)

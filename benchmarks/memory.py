@@ -56,9 +56,9 @@ def main() -> None:
                 "--dataset.repo_id=local/bench",
                 f"--dataset.root={root}",
                 f"--policy.path={ckpt}",
-                "--strategy=adademo",
-                "--target_successes=2",
-                "--max_demos_per_task=5",
+                "--strategy.type=adademo",
+                "--strategy.target_successes=2",
+                "--strategy.max_demos_per_task=5",
             ]
         )
     lines = [

@@ -22,6 +22,9 @@ from importlib import metadata
 
 
 def preload() -> None:
+    from adademo_lerobot.gl import prefer_loadable_backend
+
+    prefer_loadable_backend()  # as a command does, before anything imports MuJoCo
     import lerobot.datasets.lerobot_dataset  # noqa: F401
     import lerobot.policies  # noqa: F401
     import lerobot.scripts.lerobot_eval  # noqa: F401

@@ -12,6 +12,10 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
+# The tests render in this process as a command would: the GL backend before anything imports MuJoCo.
+from adademo_lerobot.gl import prefer_loadable_backend  # noqa: E402
+
+prefer_loadable_backend()
 # LeRobot's Robot and Teleoperator make a calibration folder under this on creation: not in the user's home.
 os.environ.setdefault("HF_LEROBOT_CALIBRATION", tempfile.mkdtemp(prefix="adademo-tests-calibration-"))
 BIN = Path(sys.executable).parent

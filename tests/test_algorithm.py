@@ -47,10 +47,13 @@ class ScriptedRound:
     def ask_expert(self, task: str, seeds: list[int]) -> None:
         self.asked += seeds
 
-    def new_record(self, task: str, strategy: str) -> TaskRoundRecord:
-        return TaskRoundRecord(
-            self.round_index, task, strategy, self.target_successes, self.max_demos_per_task, None, None
-        )
+    def new_record(
+        self, task: str, strategy: str, target_successes=None, cap=None, demos=None
+    ) -> TaskRoundRecord:
+        return TaskRoundRecord(self.round_index, task, strategy, target_successes, cap, demos, None)
+
+    def run_tasks(self, work):
+        return [work("reach-v3")]
 
     def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
         self.batches.append(len(seeds))
@@ -78,7 +81,10 @@ class ScriptedRound:
 
 
 def run_loop(ctx: ScriptedRound) -> TaskRoundRecord:
-    return collect_on_failed_states(ctx, "reach-v3", ctx.new_record("reach-v3", "adademo"))
+    record = ctx.new_record("reach-v3", "adademo", ctx.target_successes, ctx.max_demos_per_task)
+    return collect_on_failed_states(
+        ctx, "reach-v3", record, ctx.target_successes, ctx.max_demos_per_task, ctx.max_eval_episodes_per_task
+    )
 
 
 def seeds(n: int, task: str = "reach-v3") -> list[int]:
@@ -152,13 +158,13 @@ def test_task_only_plans_the_papers_estimate_and_collects_from_fresh_states(tmp_
         max_eval_episodes_per_task=50,
         plan_episodes_per_task=10,
     )
-    r = TaskOnlyStrategy().expand_task(ctx, "reach-v3")
+    (r,) = TaskOnlyStrategy(4, 50, 10).expand(ctx)
     assert ctx.evaluated == plan_state_seeds(0, 1, "reach-v3", 10)
     assert (r.eval_episodes, r.successes, r.failures) == (10, 2, 8)
     assert r.planned_demos == 16 == planned_demos(4, 0.2, 50)  # 4 / 0.2 - 4
     assert ctx.fresh_requests == [16] and not r.cap_hit
     ctx = ScriptedRound("F" * 10, target_successes=4, max_demos_per_task=7, max_eval_episodes_per_task=50)
-    r = TaskOnlyStrategy().expand_task(ctx, "reach-v3")
+    (r,) = TaskOnlyStrategy(4, 7, 10).expand(ctx)
     assert r.planned_demos == 7 and r.cap_hit  # SR 0 gets CAP
 
 
@@ -243,8 +249,15 @@ class BudgetRound:
         self.collected = {t: [] for t in self.outcomes}
         self._position = {t: {} for t in self.outcomes}
 
-    def new_record(self, task, strategy):
-        return TaskRoundRecord(self.round_index, task, strategy, None, self.max_demos_per_task, None, None)
+    def new_record(self, task, strategy, target_successes=None, cap=None, demos=None):
+        return TaskRoundRecord(self.round_index, task, strategy, target_successes, cap, demos, None)
+
+    def strategy(self):
+        from adademo_lerobot.strategies.budgeted import BudgetedStrategy
+
+        return BudgetedStrategy(
+            self.budget, self.max_demos_per_task, self.max_eval_episodes_per_task, self.posterior_decay
+        )
 
     def evaluate(self, task, seeds):
         out = []
@@ -290,8 +303,6 @@ def test_allocate_splits_exactly_in_proportion_within_caps():
 
 
 def test_budgeted_spends_exactly_the_budget_on_failed_states_weak_tasks_first():
-    from adademo_lerobot.strategies.budgeted import BudgetedStrategy
-
     ctx = BudgetRound(
         {
             "easy": "SSSSSSSSFSSSSSSSSSSSSSSSS" * 4,
@@ -300,7 +311,7 @@ def test_budgeted_spends_exactly_the_budget_on_failed_states_weak_tasks_first():
         },
         budget=12,
     )
-    records = {r.task: r for r in BudgetedStrategy().expand_round(ctx)}
+    records = {r.task: r for r in ctx.strategy().expand(ctx)}
     assert sum(r.demos_added for r in records.values()) == 12
     assert records["hard"].demos_added > records["mid"].demos_added > records["easy"].demos_added
     for task, r in records.items():  # every demo from a state the policy failed, every evaluation accounted
@@ -314,9 +325,7 @@ def test_budgeted_spends_exactly_the_budget_on_failed_states_weak_tasks_first():
     assert records["hard"].planned_demos == records["easy"].planned_demos  # Beta(1, 1): an even first split
 
 
-def test_budgeted_falls_short_only_where_the_expert_fails_and_says_so(capsys):
-    from adademo_lerobot.strategies.budgeted import BudgetedStrategy
-
+def test_budgeted_falls_short_only_where_the_expert_fails_and_says_so(caplog):
     ctx = BudgetRound(
         {"a": "F" * 40, "b": "F" * 40},
         budget=10,
@@ -324,14 +333,15 @@ def test_budgeted_falls_short_only_where_the_expert_fails_and_says_so(capsys):
         max_eval_episodes_per_task=8,
         expert_fails_on={"b": set(range(40))},
     )
-    records = {r.task: r for r in BudgetedStrategy().expand_round(ctx)}
+    with caplog.at_level("INFO", logger="adademo_lerobot"):
+        records = {r.task: r for r in ctx.strategy().expand(ctx)}
     assert records["b"].demos_added == 0 and records["b"].eval_bound_hit
     assert records["a"].demos_added == 8 and records["a"].eval_bound_hit  # bounded too: 8 of the 10
-    assert "spent 8 of its budget of 10" in capsys.readouterr().out
+    assert "spent 8 of its budget of 10" in caplog.text
 
 
 def test_budgeted_prior_comes_from_earlier_rounds_evaluations_with_decay(tmp_path):
-    from adademo_lerobot.strategies.budgeted import prior_from_earlier_rounds
+    from adademo_lerobot.strategies.estimates import prior_from_earlier_rounds
 
     for r, outcomes in ((1, [True, False, False, False]), (2, [True, True])):
         journal = RoundJournal(tmp_path, r)
@@ -349,7 +359,7 @@ def test_budgeted_prior_comes_from_earlier_rounds_evaluations_with_decay(tmp_pat
 
 
 def test_the_papers_e_is_picked_to_fit_a_budget():
-    from adademo_lerobot.strategies.budgeted import pick_target_successes
+    from adademo_lerobot.strategies.adademo import pick_target_successes
 
     target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.25}, cap=50)
     assert target == 5 and plan == {"a": 5, "b": 15}  # E=6 would need 6 + 18 = 24 > 20

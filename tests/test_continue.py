@@ -18,13 +18,12 @@ from adademo_lerobot.ledger import read_ledger
 CONTINUE = [
     "--config_path=recipes/continue_from_checkpoint.yaml",
     "--rounds=2",
-    "--budget=[2]",
-    "--max_demos_per_task=[2]",
+    "--strategy.budget=[2]",
+    "--strategy.max_demos_per_task=[2]",
     "--train.finetune_steps=4",
     "--train.save_freq=4",
     "--train.batch_size=8",
     "--eval.episodes_per_task=3",
-    "--plan_episodes_per_task=3",
 ]
 
 

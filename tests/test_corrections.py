@@ -62,7 +62,12 @@ def replay(suite, root, episode_index, row) -> None:
 
 def test_two_takeover_rounds_add_corrections_that_replay_exactly(dataset, ckpt):
     suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))
-    common = [f"--policy.path={ckpt}", "--strategy=adademo", "--target_successes=1", "--max_demos_per_task=3"]
+    common = [
+        f"--policy.path={ckpt}",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=1",
+        "--strategy.max_demos_per_task=3",
+    ]
     common += ["--eval.batch_size=3", "--demo_start=takeover"]
     expand(dataset, *common, "--takeover.rule=backoff", "--takeover.backoff=30")
     expand(dataset, *common, "--takeover.rule=disagreement")
@@ -123,7 +128,11 @@ def test_takeover_bad_input_gets_one_error_and_no_change(dataset, ckpt, tmp_path
         )
 
     takeover = [f"--policy.path={ckpt}", "--demo_start=takeover"]
-    fails(*takeover, "--strategy=uniform", match="--strategy=uniform collects from fresh initial states")
+    fails(
+        *takeover,
+        "--strategy.type=uniform",
+        match="--strategy.type=uniform collects from fresh initial states",
+    )
     fails(*takeover, "--takeover.rule=random", match="unknown --takeover.rule='random'")
     fails(*takeover, "--takeover.threshold=-1", match="--takeover.threshold must be >= 0")
     fails(*takeover, "--takeover.backoff=-3", match="--takeover.backoff must be >= 0")

@@ -107,14 +107,15 @@ def same_round(a: Path, b: Path, round_index: int) -> None:
     assert outcomes(a) == outcomes(b)
 
 
-def expand_args(root: Path, ckpt: Path) -> list[str]:
+ADADEMO = ["--strategy.type=adademo", "--strategy.target_successes=2", "--strategy.max_demos_per_task=4"]
+
+
+def expand_args(root: Path, ckpt: Path, strategy: list[str] = ADADEMO) -> list[str]:
     return [
         "--dataset.repo_id=local/demo",
         f"--dataset.root={root}",
         f"--policy.path={ckpt}",
-        "--strategy=adademo",
-        "--target_successes=2",
-        "--max_demos_per_task=4",
+        *strategy,
         "--eval.batch_size=3",
         "--commit_every=2",
     ]
@@ -131,17 +132,22 @@ def test_ray_gives_the_same_round_as_local(reach_push_dataset, ckpt, ray_address
 
     # Uniform (fresh states, no policy) and task_only, likewise.
     for strategy in (
-        ["--strategy=uniform", "--demos_per_task=2"],
-        ["--strategy=task_only", "--target_successes=1", "--plan_episodes_per_task=3"],
+        ["--strategy.type=uniform", "--strategy.demos_per_task=2"],
+        ["--strategy.type=task_only", "--strategy.target_successes=1", "--strategy.plan_episodes_per_task=3"],
     ):
-        run_cli("adademo-expand", *expand_args(local, ckpt), *strategy)
-        run_cli("adademo-expand", *expand_args(remote, ckpt), *strategy, *ray_flags(ray_address))
+        run_cli("adademo-expand", *expand_args(local, ckpt, strategy))
+        run_cli("adademo-expand", *expand_args(remote, ckpt, strategy), *ray_flags(ray_address))
     same_round(local, remote, 3)
 
     # Corrections: the takeover is chosen on the worker that ran the rollout, the correction on any worker.
-    takeover = ["--strategy=budgeted", "--target_successes=null", "--budget=4", "--demo_start=takeover"]
-    run_cli("adademo-expand", *expand_args(local, ckpt), *takeover)
-    run_cli("adademo-expand", *expand_args(remote, ckpt), *takeover, *ray_flags(ray_address))
+    takeover = ["--strategy.type=budgeted", "--strategy.budget=4"]
+    run_cli("adademo-expand", *expand_args(local, ckpt, takeover), "--demo_start=takeover")
+    run_cli(
+        "adademo-expand",
+        *expand_args(remote, ckpt, takeover),
+        "--demo_start=takeover",
+        *ray_flags(ray_address),
+    )
     same_round(local, remote, 4)
     ea, eb = read_episode_metadata(local), read_episode_metadata(remote)
     assert (ea[ea["adademo/round"] == 4]["adademo/source"] == "correction").all()

@@ -65,9 +65,9 @@ def test_adademo_collects_only_on_failed_states_within_the_cap(dataset, ckpt):
     expand(
         dataset,
         f"--policy.path={ckpt}",
-        "--strategy=adademo",
-        "--target_successes=2",
-        "--max_demos_per_task=5",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=2",
+        "--strategy.max_demos_per_task=5",
         "--eval.batch_size=3",
     )
     eps, new, ledger = check_ledger_agrees(dataset, 1)
@@ -103,7 +103,7 @@ def test_adademo_collects_only_on_failed_states_within_the_cap(dataset, ckpt):
 
 
 def test_uniform_adds_exactly_n_per_task_from_fresh_states(dataset):
-    expand(dataset, "--strategy=uniform", "--demos_per_task=4")
+    expand(dataset, "--strategy.type=uniform", "--strategy.demos_per_task=4")
     _, new, ledger = check_ledger_agrees(dataset, 1)
     for r in ledger:
         assert r["demos_added"] == 4 - r["expert_failures"] and r["eval_episodes"] == 0
@@ -116,10 +116,10 @@ def test_task_only_allocates_like_adademo_from_fresh_states(dataset, ckpt):
     expand(
         dataset,
         f"--policy.path={ckpt}",
-        "--strategy=task_only",
-        "--target_successes=1",
-        "--max_demos_per_task=3",
-        "--plan_episodes_per_task=4",
+        "--strategy.type=task_only",
+        "--strategy.target_successes=1",
+        "--strategy.max_demos_per_task=3",
+        "--strategy.plan_episodes_per_task=4",
     )
     _, new, ledger = check_ledger_agrees(dataset, 1)
     for r in ledger:
@@ -142,8 +142,8 @@ def test_plan_only_prints_predictions_and_changes_nothing(dataset, ckpt):
         dataset,
         f"--policy.path={ckpt}",
         "--plan_only=true",
-        "--target_successes=2",
-        "--max_demos_per_task=4",
+        "--strategy.target_successes=2",
+        "--strategy.max_demos_per_task=4",
         "--plan_episodes_per_task=3",
     )
     assert "predicted demos" in proc.stdout and "total" in proc.stdout and "nothing collected" in proc.stdout
@@ -152,13 +152,13 @@ def test_plan_only_prints_predictions_and_changes_nothing(dataset, ckpt):
 
 @pytest.mark.slow
 def test_second_round_follows_the_first(dataset, ckpt):
-    expand(dataset, "--strategy=uniform", "--demos_per_task=1")
+    expand(dataset, "--strategy.type=uniform", "--strategy.demos_per_task=1")
     expand(
         dataset,
         f"--policy.path={ckpt}",
-        "--strategy=adademo",
-        "--target_successes=1",
-        "--max_demos_per_task=2",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=1",
+        "--strategy.max_demos_per_task=2",
     )
     assert sorted({r["round"] for r in read_ledger(dataset)}) == [1, 2]
     check_ledger_agrees(dataset, 2)
@@ -170,9 +170,9 @@ def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, 
         "--dataset.repo_id=local/demo",
         f"--dataset.root={dataset}",
         f"--policy.path={ckpt}",
-        "--strategy=adademo",
-        "--target_successes=2",
-        "--max_demos_per_task=6",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=2",
+        "--strategy.max_demos_per_task=6",
         "--commit_every=1",
         "--eval.batch_size=2",
         f"--demo_start={demo_start}",
@@ -184,7 +184,7 @@ def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, 
         [str(BIN / "adademo-expand"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
     deadline = time.time() + 300
-    while len(list(episodes_dir.rglob("*.parquet"))) < files_before + 2:  # two commits done, more coming
+    while len(list(episodes_dir.rglob("*.parquet"))) < files_before + 3:  # two commits done, a third begun
         assert time.time() < deadline and proc.poll() is None, "expand ended before it could be killed"
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
@@ -232,14 +232,24 @@ def test_bad_input_gets_one_clear_error_and_no_change(dataset, ckpt, tmp_path):
             "adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args, match=match
         )
 
-    fails(f"--policy.path={ckpt}", "--target_successes=0", match="target_successes")
-    fails(f"--policy.path={ckpt}", "--strategy=greedy", match="strategy")
+    fails(f"--policy.path={ckpt}", "--strategy.target_successes=0", match="target_successes")
+    fails(f"--policy.path={ckpt}", "--strategy.type=greedy", match="strategy")
+    # A flag is used or refused, never ignored: another strategy's setting, a list for one round, a plan flag.
+    fails("--strategy.type=uniform", "--strategy.target_successes=3", match="target_successes")
+    fails(
+        f"--policy.path={ckpt}", "--strategy.target_successes=[5,10]", match="adademo-expand runs one round"
+    )
+    fails(f"--policy.path={ckpt}", "--plan_episodes_per_task=5", match="used with --plan_only")
     fails(f"--policy.path={tmp_path / 'missing'}", match="no LeRobot checkpoint")
-    fails("--strategy=adademo", match="--policy.path")
+    fails("--strategy.type=adademo", match="--policy.path")
     with exclusive_use(
         dataset, "a test"
     ):  # another command is writing this dataset: refused, not interleaved
-        fails("--strategy=uniform", "--demos_per_task=1", match="in use by another running adademo command")
+        fails(
+            "--strategy.type=uniform",
+            "--strategy.demos_per_task=1",
+            match="in use by another running adademo command",
+        )
     assert file_digests(dataset) == before
 
     three = tmp_path / "three"
@@ -270,7 +280,7 @@ def test_a_damaged_dataset_is_refused_before_anything_is_written(dataset, ckpt):
     first = sorted((dataset / "data").rglob("*.parquet"))[0]
     first.write_bytes(first.read_bytes()[: first.stat().st_size // 2])
     before = file_digests(dataset)
-    for args in (["--strategy=uniform"], [f"--policy.path={ckpt}", "--strategy=adademo"]):
+    for args in (["--strategy.type=uniform"], [f"--policy.path={ckpt}", "--strategy.type=adademo"]):
         last = assert_cli_error(
             "adademo-expand",
             "--dataset.repo_id=local/demo",
@@ -339,8 +349,13 @@ def test_checkpoint_with_another_action_size_is_refused(dataset, tmp_path):
 
 
 def test_budgeted_spends_exactly_its_budget_on_failed_states_and_records_the_posterior(dataset, ckpt):
-    args = [f"--policy.path={ckpt}", "--strategy=budgeted", "--max_demos_per_task=10", "--eval.batch_size=3"]
-    expand(dataset, *args, "--budget=5")
+    args = [
+        f"--policy.path={ckpt}",
+        "--strategy.type=budgeted",
+        "--strategy.max_demos_per_task=10",
+        "--eval.batch_size=3",
+    ]
+    expand(dataset, *args, "--strategy.budget=5")
     _, new, ledger = check_ledger_agrees(dataset, 1)
     assert (
         len(new) == 5 == sum(r["demos_added"] for r in ledger)
@@ -356,7 +371,7 @@ def test_budgeted_spends_exactly_its_budget_on_failed_states_and_records_the_pos
         assert r["extra"]["prior"] == [1.0, 1.0]  # no earlier round
         assert r["extra"]["posterior"] == [1 + r["successes"], 1 + r["failures"]]
     # Round 2 starts from round 1's outcomes.
-    expand(dataset, *args, "--budget=4")
+    expand(dataset, *args, "--strategy.budget=4")
     _, new, ledger = check_ledger_agrees(dataset, 2)
     assert len(new) == 4
     assert all(r["extra"]["prior"] != [1.0, 1.0] for r in ledger)
@@ -364,7 +379,11 @@ def test_budgeted_spends_exactly_its_budget_on_failed_states_and_records_the_pos
 
 def test_a_budget_picks_e_for_the_papers_strategy(dataset, ckpt):
     proc = expand(
-        dataset, f"--policy.path={ckpt}", "--strategy=adademo", "--budget=6", "--max_demos_per_task=3"
+        dataset,
+        f"--policy.path={ckpt}",
+        "--strategy.type=adademo",
+        "--strategy.budget=6",
+        "--strategy.max_demos_per_task=3",
     )
     picked = int(re.search(r"picked E=(\d+)", proc.stdout).group(1))
     _, new, ledger = check_ledger_agrees(dataset, 1)
@@ -374,9 +393,12 @@ def test_a_budget_picks_e_for_the_papers_strategy(dataset, ckpt):
 def test_budget_bad_input_gets_one_error_and_no_change(dataset, ckpt):
     before = file_digests(dataset)
     for args, match in (
-        (["--strategy=budgeted", "--budget=0"], "--budget must be >= 1"),
-        (["--strategy=budgeted"], "needs --budget"),
-        (["--strategy=adademo", "--budget=5", "--target_successes=3"], "both set the round's size"),
+        (["--strategy.type=budgeted", "--strategy.budget=0"], "--strategy.budget needs one value >= 1"),
+        (["--strategy.type=budgeted"], "--strategy.budget needs one value >= 1"),
+        (
+            ["--strategy.type=adademo", "--strategy.budget=5", "--strategy.target_successes=3"],
+            "both set the round's size",
+        ),
     ):
         assert_cli_error(
             "adademo-expand",

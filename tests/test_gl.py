@@ -46,10 +46,11 @@ def without_gl(*command: str, env: dict | None = None) -> subprocess.CompletedPr
 
 def test_without_opengl_the_package_imports_and_pixels_fail_with_one_line(tmp_path):
     probe = (
-        "import ctypes.util, adademo_lerobot.gl as gl, mujoco; "
+        "import adademo_lerobot.scripts, adademo_lerobot.gl as gl, mujoco; "
         "print('osmesa', gl.library_loads('OSMesa'), 'egl', gl.library_loads('EGL'))"
     )
-    # Even an explicit MUJOCO_GL=osmesa, which makes `import mujoco` itself fail without libOSMesa, imports.
+    # Even an explicit MUJOCO_GL=osmesa, which makes `import mujoco` itself fail without libOSMesa, imports in a
+    # command (the entry points pick a backend that loads before anything imports MuJoCo).
     proc = without_gl(sys.executable, "-c", probe, env={"MUJOCO_GL": "osmesa"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "osmesa False egl False" in proc.stdout  # the libraries really are gone in there

@@ -29,8 +29,8 @@ def expand_uniform(root: Path, repo_id: str = "local/x", n: int = 1) -> None:
         "adademo-expand",
         f"--dataset.repo_id={repo_id}",
         f"--dataset.root={root}",
-        "--strategy=uniform",
-        f"--demos_per_task={n}",
+        "--strategy.type=uniform",
+        f"--strategy.demos_per_task={n}",
     )
 
 
@@ -89,9 +89,9 @@ def test_expand_accepts_a_stock_lerobot_train_checkpoint(reach_push_dataset, sto
         "--dataset.repo_id=local/demo",
         f"--dataset.root={root}",
         f"--policy.path={stock_act_checkpoint}",
-        "--strategy=adademo",
-        "--target_successes=1",
-        "--max_demos_per_task=1",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=1",
+        "--strategy.max_demos_per_task=1",
     )
     assert {r["policy_path"] for r in read_ledger(root)} == {str(stock_act_checkpoint)}
 

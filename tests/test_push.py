@@ -33,8 +33,8 @@ def expanded(reach_push_dataset, tmp_path_factory):
     shutil.copytree(reach_push_dataset, root)
     run_cli(
         "adademo-expand",
-        "--strategy=uniform",
-        "--demos_per_task=1",
+        "--strategy.type=uniform",
+        "--strategy.demos_per_task=1",
         "--dataset.repo_id=local/demo",
         f"--dataset.root={root}",
     )

@@ -50,7 +50,7 @@ def test_tiny_recipe_end_to_end_with_report(tmp_path):
         "adademo-run",
         "--config_path=recipes/tiny.yaml",
         f"--run_dir={uniform}",
-        "--strategy=uniform",
+        "--strategy.type=uniform",
         "--train.sampler=task",
         "--train.mode=finetune",
         "--train.finetune_steps=3",
@@ -145,14 +145,14 @@ def test_run_bad_input(tmp_path):
         "adademo-run",
         "--config_path=recipes/tiny.yaml",
         f"--run_dir={tmp_path / 'r'}",
-        "--strategy=random",
+        "--strategy.type=random",
         match="strategy",
     )
     assert_cli_error(
         "adademo-run",
         "--config_path=recipes/tiny.yaml",
         f"--run_dir={tmp_path / 'r'}",
-        "--target_successes=[0]",
+        "--strategy.target_successes=[0]",
         match="target_successes",
     )
     assert_cli_error("adademo-report", f"--run_dir={tmp_path}", match="run_state.json")
@@ -181,6 +181,7 @@ def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_
     (older / "run_state.json").write_text(
         json.dumps({"settings": {"strategy": "adademo"}, "done": {"collect": {}}})
     )
-    assert RunState(older, {"strategy": "adademo", "lr_schedule": "preset"}).done == {"collect": {}}
+    now = {"strategy": "adademo", "lr_schedule": "preset", "demo_start": "initial", "takeover": None}
+    assert RunState(older, now).done == {"collect": {}}
     with pytest.raises(AdaDemoError, match="lr_schedule"):
         RunState(older, {"strategy": "adademo", "lr_schedule": "cosine"})

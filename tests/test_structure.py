@@ -7,6 +7,7 @@ against that direction (or any cycle, including one held together by an import i
 from __future__ import annotations
 
 import ast
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -28,7 +29,7 @@ LAYERS = [
     ("adademo_lerobot.tables", 0),
     ("adademo_lerobot.patching", 0),
     ("adademo_lerobot.dataset.layout", 0),
-    ("adademo_lerobot", 0),  # the package __init__ (version check, GL choice)
+    ("adademo_lerobot", 0),  # the package __init__ (the version check; it changes nothing of the process)
     # simulators and data
     ("adademo_lerobot.suites", 1),
     ("adademo_lerobot.recording", 1),
@@ -50,6 +51,7 @@ LAYERS = [
     ("adademo_lerobot.expand", 4),
     ("adademo_lerobot.train", 4),
     ("adademo_lerobot.report", 4),
+    ("adademo_lerobot.failure_map", 4),
     ("adademo_lerobot.hub", 4),
     ("adademo_lerobot.record", 4),
     ("adademo_lerobot.start", 4),
@@ -165,7 +167,7 @@ print("RESULT", code, "torch" in sys.modules, "lerobot" in sys.modules)
             2,
         ),
         ("expand", ["--help"], 0),
-        ("expand", ["--dataset.root=/nonexistent/ds", "--strategy=greedy"], 2),
+        ("expand", ["--dataset.root=/nonexistent/ds", "--strategy.type=greedy"], 2),
         ("expand", ["--dataset.root=/nonexistent/ds"], 2),
         ("push", ["--help"], 0),
         ("push", ["--dataset.root=/nonexistent/ds", "--repo_id=bad id"], 2),
@@ -174,8 +176,17 @@ print("RESULT", code, "torch" in sys.modules, "lerobot" in sys.modules)
         # import torch) answer these from their first parse
         ("run", ["--help"], 0),
         ("run", [QUICKSTART, "--run_dir=/tmp/r", "--rounds=x"], 2),
-        ("run", [QUICKSTART, "--run_dir=/tmp/r", "--strategy=greedy"], 2),
-        ("run", ["--run_dir=/tmp/r", "--train.policy.type=act", "--budget=[5]", "--target_successes=[3]"], 2),
+        ("run", [QUICKSTART, "--run_dir=/tmp/r", "--strategy.type=greedy"], 2),
+        (
+            "run",
+            [
+                "--run_dir=/tmp/r",
+                "--train.policy.type=act",
+                "--strategy.budget=[5]",
+                "--strategy.target_successes=[3]",
+            ],
+            2,
+        ),
         ("run", ["--run_dir=/tmp/r"], 2),  # no policy to train
         ("train", ["--help"], 0),
         ("train", ["--policy.type=act", "--dataset.root=/d", "--sampler=greedy"], 2),
@@ -205,3 +216,26 @@ def test_commands_answer_bad_input_and_help_without_importing_torch(script, args
     assert (torch_loaded, lerobot_loaded) == ("False", "False")
     if expected_code == 2:
         assert proc.stderr.strip().splitlines()[-1].startswith("error: ")
+
+
+def test_importing_the_library_changes_nothing_of_the_process():
+    """Importing adademo_lerobot and its library modules sets no environment variable and no matplotlib backend
+    (the commands and LeRobot's import of our plugins pick the GL backend; reports draw without pyplot)."""
+    modules = sorted(
+        module_name(p)
+        for p in PACKAGE.rglob("*.py")
+        if not module_name(p).startswith(("adademo_lerobot.scripts", "adademo_lerobot.lerobot_plugins"))
+    )
+    code = (
+        "import importlib, os, sys\n"
+        # What the libraries we build on set when imported is theirs (gymnasium-robotics: pygame's and SDL's;
+        # accelerate: torch inductor's cache).
+        "import accelerate, gymnasium_robotics, lerobot.policies, lerobot.datasets.lerobot_dataset, metaworld\n"
+        "before = dict(os.environ)\n"
+        f"for m in {modules!r}: importlib.import_module(m)\n"
+        "changed = sorted(k for k in set(before) | set(os.environ) if before.get(k) != os.environ.get(k))\n"
+        "print('CHANGED', changed, 'PYPLOT', 'matplotlib.pyplot' in sys.modules)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert "CHANGED [] PYPLOT False" in proc.stdout, proc.stdout + proc.stderr[-2000:]

@@ -76,6 +76,8 @@ def test_restore_in_a_used_env_equals_a_fresh_env_for_50_steps(name):
         obs_fresh, _ = fresh.reset(options={"initial_state": state})
         np.testing.assert_array_equal(obs_used["environment_state"], obs_fresh["environment_state"])
         np.testing.assert_array_equal(used.initial_state, state)
+        # The whole state too (what a demonstration records as its start): nothing of the env's history in it.
+        np.testing.assert_array_equal(used.get_state(), fresh.get_state())
         for t, action in enumerate(_actions(suite, 50)):
             obs_used, *_ = used.step(action)
             obs_fresh, *_ = fresh.step(action)
@@ -242,9 +244,9 @@ def test_one_adademo_expand_round(name, tmp_path):
         "adademo-expand",
         *common,
         f"--policy.path={ckpt}",
-        "--strategy=adademo",
-        "--target_successes=1",
-        f"--max_demos_per_task={case.expand_demos}",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=1",
+        f"--strategy.max_demos_per_task={case.expand_demos}",
         "--eval.batch_size=2",
     )
     eps = read_episode_metadata(root)

@@ -12,7 +12,7 @@ the unit's seeds), so both give the same results whatever the number of workers 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from adademo_lerobot.collectors import CollectorConfig
@@ -33,6 +33,24 @@ class RayArgs:
     num_workers: int = 2
     num_cpus_per_worker: float = 1.0
     num_gpus_per_worker: float = 0.0
+
+
+@dataclass
+class ExecutionArgs:
+    """Where a command's episodes run and with what: the flags every command that runs a policy shares."""
+
+    # Device of the policy (cpu, cuda, mps).
+    device: str = "cpu"
+    # torch intra-op threads of this process (2-core default; lower it when env worker processes run beside it).
+    torch_threads: int = 2
+    # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
+    executor: str = "local"
+    ray: RayArgs = field(default_factory=RayArgs)
+
+    def validate_execution(self) -> None:
+        if self.torch_threads < 1:
+            raise AdaDemoError(f"--torch_threads must be >= 1, got {self.torch_threads}")
+        check_executor_args(self.executor, self.ray)
 
 
 class Pending(Protocol):
@@ -113,27 +131,22 @@ def check_executor_args(executor: str, ray: RayArgs) -> None:
 
 
 def make_executor(
-    executor: str,
-    ray: RayArgs,
-    suite: TaskSuite,
-    collector_config: CollectorConfig,
-    batch_size: int,
-    device: str = "cpu",
-    torch_threads: int = 2,
+    execution: ExecutionArgs, suite: TaskSuite, collector_config: CollectorConfig, batch_size: int
 ) -> Executor:
-    check_executor_args(executor, ray)
+    execution.validate_execution()
     if batch_size < 1:
         raise AdaDemoError(f"--eval.batch_size must be >= 1, got {batch_size}")
-    if executor == "local":
-        return LocalExecutor(suite, collector_config, batch_size, device, torch_threads)
+    if execution.executor == "local":
+        return LocalExecutor(suite, collector_config, batch_size, execution.device, execution.torch_threads)
     from adademo_lerobot.executors.ray_executor import RayExecutor
 
-    return RayExecutor(ray, suite, collector_config, batch_size, device)
+    return RayExecutor(execution.ray, suite, collector_config, batch_size, execution.device)
 
 
 __all__ = [
     "EXECUTORS",
     "CollectionResult",
+    "ExecutionArgs",
     "EpisodeRecord",
     "Executor",
     "Lazy",

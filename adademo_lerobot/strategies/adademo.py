@@ -1,14 +1,145 @@
-"""AdaDemo (principles A + B): evaluate, collect where the policy fails, until E successes or CAP demos."""
+"""`--strategy.type=adademo`: the paper's AdaDemo (principles A + B). Per task, evaluate the policy on fresh initial
+states and collect a demonstration wherever it fails, until E successes or CAP demonstrations.
+
+E is given per round (`--strategy.target_successes`), or picked from a round budget (`--strategy.budget`): the
+largest E whose predicted total (N_k = E / SR_k - E, capped, from each task's success estimate over the earlier
+rounds' evaluations) fits the budget, as the paper sets E "according to the budget".
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
 
 from adademo_lerobot.algorithm import collect_on_failed_states
+from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.records import TaskRoundRecord
-from adademo_lerobot.strategies.base import RoundContext
+from adademo_lerobot.strategies.base import (
+    DEFAULT_TARGET_SUCCESSES,
+    PerRound,
+    RoundContext,
+    StrategyConfig,
+    check_per_round,
+    default_eval_bound,
+    per_round,
+    planned_demos,
+)
+from adademo_lerobot.strategies.estimates import DEFAULT_DECAY, estimated_success_rates
+
+log = logging.getLogger(__name__)
 
 
-class AdaDemoStrategy:
-    name = "adademo"
+def pick_target_successes(
+    budget: int, success_rates: dict[str, float], cap: int
+) -> tuple[int, dict[str, int]]:
+    """The E whose predicted total (the paper's N_k = E / SR_k - E, capped at CAP) comes closest to the budget
+    without passing it (the smallest such E, once CAP stops the total from growing), and that prediction."""
+    best, best_plan = 1, {t: planned_demos(1, sr, cap) for t, sr in success_rates.items()}
+    for target in range(2, budget + 1):
+        plan = {t: planned_demos(target, sr, cap) for t, sr in success_rates.items()}
+        if sum(plan.values()) > budget:
+            break
+        if sum(plan.values()) > sum(best_plan.values()):
+            best, best_plan = target, plan
+    return best, best_plan
+
+
+@StrategyConfig.register_subclass("adademo")
+@dataclass
+class AdaDemoConfig(StrategyConfig):
+    """AdaDemo (the paper): demonstrations where the policy fails, until E successes or CAP demos per task."""
+
+    description = "AdaDemo: collect where the policy fails, until E successes or CAP demos per task"
     needs_policy = True
-    collects_at_failed_states = True  # a correction needs a failed rollout to take over
+    collects_at_failed_states = True
 
-    def expand_task(self, ctx: RoundContext, task: str) -> TaskRoundRecord:
-        return collect_on_failed_states(ctx, task, ctx.new_record(task, self.name))
+    # E_i: evaluation successes that end a task's collection (default 10); or leave it out and give a budget.
+    target_successes: PerRound = per_round()
+    # B_i: demonstrations per round; E is picked so that the predicted total fits it.
+    budget: PerRound = per_round()
+    # CAP_i: at most this many new demonstrations per task per round (the paper's per-round cap).
+    max_demos_per_task: PerRound = per_round(50)
+    # Bound on evaluation episodes per task and round, so a task the expert cannot solve still ends
+    # (default 2 x (E + CAP)).
+    max_eval_episodes_per_task: int | None = None
+    # With a budget: weight of an earlier round's evaluation outcomes per round since, in the success estimate.
+    posterior_decay: float = DEFAULT_DECAY
+
+    def validate(self) -> None:
+        for name in ("target_successes", "budget"):
+            check_per_round(name, getattr(self, name))
+        check_per_round("max_demos_per_task", self.max_demos_per_task, required=True)
+        if self.budget and self.target_successes:
+            raise AdaDemoError(
+                f"--strategy.budget={list(self.budget)} and --strategy.target_successes="
+                f"{list(self.target_successes)} both set the round's size: pass one (with a budget, E is picked "
+                "to fit it)"
+            )
+        check_eval_bound(self.max_eval_episodes_per_task)
+        check_decay(self.posterior_decay)
+
+    def build(self, round_in_run: int) -> AdaDemoStrategy:
+        return AdaDemoStrategy(
+            self.target_successes.at(round_in_run),
+            self.budget.at(round_in_run),
+            self.max_demos_per_task.at(round_in_run),
+            self.max_eval_episodes_per_task,
+            self.posterior_decay,
+        )
+
+
+def check_eval_bound(bound: int | None) -> None:
+    if bound is not None and bound < 1:
+        raise AdaDemoError(f"--strategy.max_eval_episodes_per_task must be >= 1, got {bound}")
+
+
+def check_decay(decay: float) -> None:
+    if not 0 < decay <= 1:
+        raise AdaDemoError(f"--strategy.posterior_decay must be in (0, 1], got {decay}")
+
+
+@dataclass
+class AdaDemoStrategy:
+    target_successes: int | None
+    budget: int | None
+    cap: int
+    max_eval_episodes_per_task: int | None
+    posterior_decay: float
+    name = "adademo"
+    commits_by_task = True
+
+    def start(self, ctx: RoundContext, resumed: dict | None) -> dict:
+        """E for the round: given, the default, or picked from the budget (a resumed round keeps its pick, since
+        the estimate would now include its own evaluations)."""
+        if self.target_successes is None and self.budget is not None:
+            if resumed and resumed.get("target_successes") is not None:
+                self.target_successes = resumed["target_successes"]
+            else:
+                rates = estimated_success_rates(
+                    ctx.dataset.root, ctx.round_index, ctx.suite.tasks, self.posterior_decay
+                )
+                self.target_successes, plan = pick_target_successes(self.budget, rates, self.cap)
+                log.info(
+                    "budget %d: picked E=%d (predicted demos %s; total %d)",
+                    self.budget, self.target_successes,
+                    ", ".join(f"{t} {n}" for t, n in plan.items()), sum(plan.values()),
+                )  # fmt: skip
+        self.target_successes = self.target_successes or DEFAULT_TARGET_SUCCESSES
+        self.max_eval_episodes_per_task = self.max_eval_episodes_per_task or default_eval_bound(
+            self.target_successes, self.cap
+        )
+        return {
+            "target_successes": self.target_successes,
+            "max_demos_per_task": self.cap,
+            "budget": self.budget,
+            "max_eval_episodes_per_task": self.max_eval_episodes_per_task,
+        }
+
+    def expand(self, ctx: RoundContext) -> list[TaskRoundRecord]:
+        def one_task(task: str) -> TaskRoundRecord:
+            record = ctx.new_record(task, self.name, self.target_successes, self.cap)
+            return collect_on_failed_states(
+                ctx, task, record, self.target_successes, self.cap, self.max_eval_episodes_per_task
+            )
+
+        return ctx.run_tasks(one_task)

@@ -1,4 +1,10 @@
-"""What every expansion strategy gets (`RoundContext`) and provides (`ExpansionStrategy`).
+"""What every expansion strategy is configured by (`StrategyConfig`), gets (`RoundContext`) and provides
+(`ExpansionStrategy`).
+
+A strategy is a draccus `ChoiceRegistry` config (`--strategy.type=adademo|budgeted|uniform|task_only`, as suites and
+collectors are) with its own fields, checks and description; `build(i)` gives round i's strategy, whose one entry
+point `expand(ctx)` runs the round. Per-round settings (E_i, CAP_i, N_i, B_i) are `PerRound` values: one value for
+every round, or a list whose last value repeats.
 
 The context owns the side effects a round needs, each journaled so an interrupted round resumes exactly:
 evaluating the policy on initial states, asking the expert for a demonstration from one state, and appending
@@ -7,18 +13,22 @@ demonstrations to the dataset in crash-safe commits.
 
 from __future__ import annotations
 
+import abc
+import dataclasses
 import math
 import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, ClassVar, Protocol
 
+import draccus
 import numpy as np
 
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
 from adademo_lerobot.dataset.store import DemoDataset
+from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.ledger import RoundJournal
 from adademo_lerobot.records import Demonstration, EpisodeRecord, TaskRoundRecord
@@ -28,19 +38,122 @@ from adademo_lerobot.takeover import TakeoverArgs
 
 # A task whose expert keeps failing stops after this many fresh initial states per requested demo.
 MAX_DRAWS_PER_DEMO = 3
+# E when none is given (the paper's runs use 5 to 20).
+DEFAULT_TARGET_SUCCESSES = 10
+
+
+class PerRound(tuple):
+    """A setting per expansion round: `5` for every round, or `[5, 10, 20]` (the last value repeats)."""
+
+    def at(self, round_in_run: int) -> int | None:
+        """Round i's value (i from 1); None when unset."""
+        return self[min(round_in_run, len(self)) - 1] if self else None
+
+
+def _decode_per_round(raw: Any, path) -> PerRound:
+    values = raw if isinstance(raw, list | tuple) else ([] if raw is None else [raw])
+    try:
+        return PerRound(int(v) for v in values)
+    except (TypeError, ValueError):
+        raise draccus.utils.DecodingError(
+            path, f"expected a number or a list of numbers, got {raw!r}"
+        ) from None
+
+
+draccus.decode.register(PerRound, _decode_per_round)
+draccus.encode.register(PerRound, list)
+
+
+def per_round(*values: int) -> PerRound:
+    """A `PerRound` default for a dataclass field."""
+    return field(default_factory=lambda: PerRound(values))
 
 
 def planned_demos(target_successes: int, success_rate: float, cap: int) -> int:
-    """The paper's N_k = E / SR_k - E, capped at CAP (SR_k = 0 gets CAP)."""
+    """The paper's N_k = E / SR_k - E, capped at CAP (SR_k = 0 gets CAP): the one formula every command uses.
+    The rate is a ratio of counts, so E / SR_k - E is a rational number; the tolerance keeps float rounding from
+    adding a demonstration (E = 2, SR = 2/49: 47, not 48)."""
     if success_rate <= 0:
         return cap
     return min(cap, max(0, math.ceil(target_successes / success_rate - target_successes - 1e-9)))
+
+
+def default_eval_bound(target_successes: int | None, cap: int) -> int:
+    """Evaluation episodes per task and round when none is given: 2 x (E + CAP), so a task whose expert keeps
+    failing still ends."""
+    return 2 * ((target_successes or DEFAULT_TARGET_SUCCESSES) + cap)
 
 
 def split_evenly(budget: int, tasks: list[str]) -> dict[str, int]:
     """Uniform's demos per task for a budget: B // K each, the first B mod K tasks one more (sums to B)."""
     base, extra = divmod(budget, len(tasks))
     return {t: base + (i < extra) for i, t in enumerate(tasks)}
+
+
+def check_per_round(name: str, values: PerRound, required: bool = False) -> None:
+    if (required and not values) or any(v < 1 for v in values):
+        raise AdaDemoError(
+            f"--strategy.{name} needs one value >= 1, or one per round ([v1,v2,...]), got {list(values) or 'none'}"
+        )
+
+
+@dataclass
+class StrategyConfig(draccus.ChoiceRegistry, abc.ABC):
+    """Which expansion strategy adds a round's demonstrations, with its own settings (`--strategy.type=NAME
+    --strategy.FIELD=...`). Each registers itself and builds its rounds' strategies."""
+
+    description: ClassVar[str]  # one line, for --help, the report and the dataset card
+    needs_policy: ClassVar[bool]  # it evaluates the policy
+    collects_at_failed_states: ClassVar[bool]  # its demonstrations answer failed evaluations (principle B)
+
+    @property
+    def type(self) -> str:
+        return self.get_choice_name(self.__class__)
+
+    @classmethod
+    def default_choice_name(cls) -> str | None:
+        return "adademo"
+
+    def validate(self) -> None:
+        """Refuse bad settings in one line (before anything is written)."""
+
+    def check_one_round(self) -> None:
+        """adademo-expand runs one round: refuse a list of several per-round values."""
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, PerRound) and len(value) > 1:
+                raise AdaDemoError(
+                    f"--strategy.{f.name}={list(value)}: adademo-expand runs one round, give one value "
+                    "(a list per round is for adademo-run)"
+                )
+
+    @abc.abstractmethod
+    def build(self, round_in_run: int) -> ExpansionStrategy:
+        """The strategy of the run's round `round_in_run` (from 1), with that round's values."""
+
+    def to_dict(self) -> dict[str, Any]:
+        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        return {"type": self.type, **{k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}}
+
+    def summary(self) -> str:
+        """`type (field=value, ...)` of the settings that differ from the defaults: how reports name it."""
+        defaults = type(self)().to_dict()
+        parts = [f"{k}={v}" for k, v in self.to_dict().items() if k != "type" and v != defaults[k]]
+        return f"{self.type} ({', '.join(parts)})" if parts else self.type
+
+
+class ExpansionStrategy(Protocol):
+    """One round's strategy: `expand(ctx)` adds the round's demonstrations and accounts for them per task."""
+
+    name: str
+    commits_by_task: bool  # demos are committed task by task in suite order (else in the order they arrive)
+
+    def start(self, ctx: RoundContext, resumed: dict | None) -> dict:
+        """Fix the round's decisions before it runs (e.g. E from a budget; a resumed round keeps the ones it
+        journaled, `resumed`) and return the settings to journal."""
+
+    def expand(self, ctx: RoundContext) -> list[TaskRoundRecord]:
+        """The round: one record per task of the suite, in suite order."""
 
 
 def eval_entry(task: str, record: EpisodeRecord) -> dict:
@@ -135,20 +248,14 @@ class RoundContext:
     seed: int
     source: str
     journal: RoundJournal | None = None
-    target_successes: int = 10
-    max_demos_per_task: int = 50
-    demos_per_task: int = 10
-    max_eval_episodes_per_task: int = 200
-    plan_episodes_per_task: int = 20
     commit_every: int = 10
     policy_path: str | None = None
-    budget: int | None = None  # the budgeted strategy's demos for the round
-    posterior_decay: float = 0.5  # the budgeted strategy's weight of a round's outcomes per round since
     commit_by_task: bool = True  # False: one loop over all tasks commits demos in the order they arrive
     # --demo_start=takeover: demonstrations are corrections that start where the expert takes over the failed
     # rollout (this rule picks the step); None: from the failed episode's initial state (the paper).
     takeover: TakeoverArgs | None = None
     on_progress: Callable[[str, TaskRoundRecord], None] | None = None
+    on_task_done: Callable[[str], None] | None = None
     _committed: dict[str, set[int]] = field(default_factory=dict)
     _pending: dict[tuple[str, int], Pending] = field(default_factory=dict)
     _takeover_states: dict[tuple[str, int], list[float]] = field(default_factory=dict)
@@ -179,19 +286,17 @@ class RoundContext:
         """Episodes evaluated side by side in one unit of work (`--eval.batch_size`)."""
         return self.executor.batch_size
 
-    def demos_for(self, task: str) -> int:
-        """Uniform's N for this task: `--demos_per_task`, or its even share of `--budget`."""
-        return split_evenly(self.budget, self.suite.tasks)[task] if self.budget else self.demos_per_task
-
-    def new_record(self, task: str, strategy: str) -> TaskRoundRecord:
+    def new_record(
+        self,
+        task: str,
+        strategy: str,
+        target_successes: int | None = None,
+        cap: int | None = None,
+        demos: int | None = None,
+    ) -> TaskRoundRecord:
+        """The ledger's record of `task` in this round, with the strategy's E, CAP and N (None where unused)."""
         return TaskRoundRecord(
-            self.round_index,
-            task,
-            strategy,
-            self.target_successes,
-            self.max_demos_per_task,
-            self.demos_per_task,
-            self.policy_path,
+            self.round_index, task, strategy, target_successes, cap, demos, self.policy_path
         )
 
     def _journal(self, *entries: dict) -> None:
@@ -333,6 +438,9 @@ class RoundContext:
             started = time.perf_counter()
             record = work(task)
             self.finish_task(task, started)
+            if self.on_task_done is not None:
+                with self._lock:
+                    self.on_task_done(task)
             return record
 
         if not self.executor.parallel_tasks:
@@ -344,15 +452,3 @@ class RoundContext:
             except BaseException:
                 pool.shutdown(wait=False, cancel_futures=True)
                 raise
-
-
-class ExpansionStrategy(Protocol):
-    """A strategy expands one task at a time (`expand_task`, the paper's loop: tasks are independent), or, when
-    its decisions span tasks (the budgeted strategy), the whole round at once (`expand_round`)."""
-
-    name: str
-    needs_policy: bool
-    collects_at_failed_states: bool  # its demonstrations answer failed evaluations (principle B)
-
-    def expand_task(self, ctx: RoundContext, task: str) -> TaskRoundRecord:
-        """Add this round's demonstrations for one task and account for them."""

@@ -1,4 +1,4 @@
-"""`--strategy=budgeted --budget=B`: AdaDemo's principles A and B with a round budget instead of E.
+"""`--strategy.type=budgeted --strategy.budget=B`: AdaDemo's principles A and B with a round budget instead of E.
 
 The paper sets E "according to the budget" by hand, and a task's share follows from a handful of evaluation
 episodes. Here the round spends exactly B demonstrations (fewer only where the expert fails every draw or a
@@ -20,12 +20,23 @@ Ray executor gives the local one's.
 
 from __future__ import annotations
 
-from adademo_lerobot.ledger import read_round_evaluations
+import logging
+from dataclasses import dataclass
+
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.seeds import expansion_state_seed
-from adademo_lerobot.strategies.base import RoundContext
+from adademo_lerobot.strategies.adademo import check_decay, check_eval_bound
+from adademo_lerobot.strategies.base import (
+    PerRound,
+    RoundContext,
+    StrategyConfig,
+    check_per_round,
+    default_eval_bound,
+    per_round,
+)
+from adademo_lerobot.strategies.estimates import DEFAULT_DECAY, failure_mean, prior_from_earlier_rounds
 
-DEFAULT_DECAY = 0.5  # weight of a round's outcomes per round since (the policy was retrained in between)
+log = logging.getLogger(__name__)
 
 
 def allocate(total: int, weights: dict[str, float], caps: dict[str, int]) -> dict[str, int]:
@@ -57,43 +68,66 @@ def allocate(total: int, weights: dict[str, float], caps: dict[str, int]) -> dic
     return alloc
 
 
-def prior_from_earlier_rounds(
-    root, round_index: int, task: str, decay: float = DEFAULT_DECAY
-) -> tuple[float, float]:
-    """Beta(alpha, beta) over the task's evaluation outcomes in rounds before `round_index` (Beta(1, 1) before
-    any): a round r outcome weighs decay ** (round_index - 1 - r)."""
-    alpha, beta = 1.0, 1.0
-    for r in range(1, round_index):
-        weight = decay ** (round_index - 1 - r)
-        for entry in read_round_evaluations(root, r):
-            if entry.get("type") == "eval" and entry.get("task") == task:
-                alpha += weight * bool(entry["success"])
-                beta += weight * (not entry["success"])
-    return alpha, beta
+@StrategyConfig.register_subclass("budgeted")
+@dataclass
+class BudgetedConfig(StrategyConfig):
+    """Exactly B demonstrations per round where the policy fails, split by each task's expected failure rate."""
 
-
-def failure_mean(posterior: tuple[float, float]) -> float:
-    alpha, beta = posterior
-    return beta / (alpha + beta)
-
-
-class BudgetedStrategy:
-    name = "budgeted"
+    description = (
+        "budgeted AdaDemo: exactly B demos per round where the policy fails, split by expected failure"
+    )
     needs_policy = True
-    collects_at_failed_states = True  # a correction needs a failed rollout to take over
+    collects_at_failed_states = True
 
-    def expand_round(self, ctx: RoundContext) -> list[TaskRoundRecord]:
-        tasks, budget, cap = ctx.suite.tasks, ctx.budget, ctx.max_demos_per_task
+    # B_i: demonstrations per round (required).
+    budget: PerRound = per_round()
+    # CAP_i: at most this many new demonstrations per task per round.
+    max_demos_per_task: PerRound = per_round(50)
+    # Bound on evaluation episodes per task and round (default 2 x (10 + CAP)).
+    max_eval_episodes_per_task: int | None = None
+    # Weight of an earlier round's evaluation outcomes per round since (1: all count the same).
+    posterior_decay: float = DEFAULT_DECAY
+
+    def validate(self) -> None:
+        check_per_round("budget", self.budget, required=True)
+        check_per_round("max_demos_per_task", self.max_demos_per_task, required=True)
+        check_eval_bound(self.max_eval_episodes_per_task)
+        check_decay(self.posterior_decay)
+
+    def build(self, round_in_run: int) -> BudgetedStrategy:
+        cap = self.max_demos_per_task.at(round_in_run)
+        bound = self.max_eval_episodes_per_task or default_eval_bound(None, cap)
+        return BudgetedStrategy(self.budget.at(round_in_run), cap, bound, self.posterior_decay)
+
+
+@dataclass
+class BudgetedStrategy:
+    budget: int
+    cap: int
+    max_eval_episodes_per_task: int
+    posterior_decay: float
+    name = "budgeted"
+    commits_by_task = False  # one loop over the whole round: demos are committed in the order they arrive
+
+    def start(self, ctx: RoundContext, resumed: dict | None) -> dict:
+        return {
+            "budget": self.budget,
+            "max_demos_per_task": self.cap,
+            "max_eval_episodes_per_task": self.max_eval_episodes_per_task,
+            "posterior_decay": self.posterior_decay,
+        }
+
+    def expand(self, ctx: RoundContext) -> list[TaskRoundRecord]:
+        tasks, budget, cap = ctx.suite.tasks, self.budget, self.cap
         posterior = {
-            t: prior_from_earlier_rounds(ctx.dataset.root, ctx.round_index, t, ctx.posterior_decay)
+            t: prior_from_earlier_rounds(ctx.dataset.root, ctx.round_index, t, self.posterior_decay)
             for t in tasks
         }
-        records = {t: ctx.new_record(t, self.name) for t in tasks}
+        records = {t: ctx.new_record(t, self.name, cap=cap) for t in tasks}
         first_plan = allocate(
             budget, {t: failure_mean(posterior[t]) for t in tasks}, dict.fromkeys(tasks, cap)
         )
         for t in tasks:
-            records[t].target_successes = None
             records[t].planned_demos = first_plan[t]
             records[t].extra = {"budget": budget, "prior": list(posterior[t])}
         sampled = dict.fromkeys(tasks, 0)
@@ -101,7 +135,7 @@ class BudgetedStrategy:
             open_tasks = [
                 t
                 for t in tasks
-                if records[t].demos_added < cap and sampled[t] < ctx.max_eval_episodes_per_task
+                if records[t].demos_added < cap and sampled[t] < self.max_eval_episodes_per_task
             ]
             if not open_tasks:
                 break
@@ -121,7 +155,7 @@ class BudgetedStrategy:
             n = min(
                 ctx.batch_size,
                 lacking[task],
-                ctx.max_eval_episodes_per_task - sampled[task],
+                self.max_eval_episodes_per_task - sampled[task],
                 budget - sum(r.demos_added for r in records.values()),
             )
             seeds = [
@@ -146,7 +180,7 @@ class BudgetedStrategy:
         for t in tasks:
             r = records[t]
             r.cap_hit = r.demos_added >= cap
-            r.eval_bound_hit = sampled[t] >= ctx.max_eval_episodes_per_task and not r.cap_hit
+            r.eval_bound_hit = sampled[t] >= self.max_eval_episodes_per_task and not r.cap_hit
             r.extra.update(
                 posterior=list(posterior[t]),
                 posterior_success_mean=1 - failure_mean(posterior[t]),
@@ -154,26 +188,9 @@ class BudgetedStrategy:
             )
         if spent < budget:
             blocked = [t for t in tasks if records[t].cap_hit or records[t].eval_bound_hit]
-            print(
-                f"note: round {ctx.round_index} spent {spent} of its budget of {budget} demonstrations: "
-                f"{', '.join(blocked)} reached CAP or the evaluation bound (the expert failed every draw or the "
-                "policy stopped failing)"
-            )
+            log.info(
+                "note: round %d spent %d of its budget of %d demonstrations: %s reached CAP or the evaluation "
+                "bound (the expert failed every draw or the policy stopped failing)",
+                ctx.round_index, spent, budget, ", ".join(blocked),
+            )  # fmt: skip
         return [records[t] for t in tasks]
-
-
-def pick_target_successes(
-    budget: int, success_rates: dict[str, float], cap: int
-) -> tuple[int, dict[str, int]]:
-    """The E whose predicted total (the paper's N_k = E / SR_k - E, capped at CAP) comes closest to the budget
-    without passing it (the smallest such E, once CAP stops the total from growing), and that prediction."""
-    from adademo_lerobot.strategies.base import planned_demos
-
-    best, best_plan = 1, {t: planned_demos(1, sr, cap) for t, sr in success_rates.items()}
-    for target in range(2, budget + 1):
-        plan = {t: planned_demos(target, sr, cap) for t, sr in success_rates.items()}
-        if sum(plan.values()) > budget:
-            break
-        if sum(plan.values()) > sum(best_plan.values()):
-            best, best_plan = target, plan
-    return best, best_plan

@@ -2,7 +2,7 @@
 
 A MetaWorld initial state is the env's object/goal vector `_last_rand_vec`. It is captured right after a
 seeded reset and restored with `_last_rand_vec = v; _freeze_rand_vec = True; reset()`, which reproduces the
-observation exactly (../shared/NOTES.md). The goal is made observable (`_partially_observable = False`): the
+observation exactly (tests/test_suite_metaworld.py checks it for every task). The goal is made observable (`_partially_observable = False`): the
 goal is part of the initial state the policy must condition on, and the scripted experts read it too.
 """
 
@@ -96,6 +96,11 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     # Tasks move bodies/sites of the *model* during reset (e.g. door-open moves the door), so a reset
     # depends on the previous layout. Keep the pristine values to make every restore equal a fresh env's.
     env._adademo_pristine_model = {name: getattr(env.model, name).copy() for name in PRISTINE_MODEL_FIELDS}
+    # ... and the Python-side episode state a fresh env starts with (the reward code's flags, the last stable
+    # observation), which MetaWorld's reset leaves from the previous episode: a restored state must not carry it.
+    env._adademo_fresh_episode = {
+        name: getattr(env, name) for name in (*EPISODE_ATTRIBUTES, "_last_stable_obs") if hasattr(env, name)
+    }
     env._adademo_settled_hand = SettledHandMemo()
     env.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
     if camera == "corner2":
@@ -197,6 +202,8 @@ def restore_layout(raw_env, layout: np.ndarray) -> np.ndarray:
     raw_env._last_rand_vec = layout.copy()
     raw_env._freeze_rand_vec = True
     raw_env._did_see_sim_exception = False
+    for name, value in raw_env._adademo_fresh_episode.items():
+        setattr(raw_env, name, value)
     # MetaWorld's reset() runs reset_model() twice: the first pass only matters through the model fields it edits
     # (mj_resetData then wipes its simulation), so it runs without hand settling, on reset data so that those edits
     # cannot depend on the previous episode; the second pass is the real one.

@@ -1,0 +1,38 @@
+"""A task's success rate as the strategies estimate it: a Beta posterior over the expansion rounds' evaluation
+outcomes (never the fixed evaluation set, which is the test set), an earlier round weighing less per round since
+(the policy was retrained in between)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from adademo_lerobot.ledger import read_round_evaluations
+
+DEFAULT_DECAY = 0.5  # weight of a round's outcomes per round since
+
+
+def prior_from_earlier_rounds(
+    root: Path, round_index: int, task: str, decay: float = DEFAULT_DECAY
+) -> tuple[float, float]:
+    """Beta(alpha, beta) over the task's evaluation outcomes in rounds before `round_index` (Beta(1, 1) before
+    any): a round r outcome weighs decay ** (round_index - 1 - r)."""
+    alpha, beta = 1.0, 1.0
+    for r in range(1, round_index):
+        weight = decay ** (round_index - 1 - r)
+        for entry in read_round_evaluations(root, r):
+            if entry.get("type") == "eval" and entry.get("task") == task:
+                alpha += weight * bool(entry["success"])
+                beta += weight * (not entry["success"])
+    return alpha, beta
+
+
+def failure_mean(posterior: tuple[float, float]) -> float:
+    alpha, beta = posterior
+    return beta / (alpha + beta)
+
+
+def estimated_success_rates(
+    root: Path, round_index: int, tasks: list[str], decay: float = DEFAULT_DECAY
+) -> dict[str, float]:
+    """Each task's posterior mean success rate before round `round_index`."""
+    return {t: 1 - failure_mean(prior_from_earlier_rounds(root, round_index, t, decay)) for t in tasks}
