@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 VENV="${ADADEMO_VENV:-$HOME/.venvs/adademo-lerobot}"
 LOCK=requirements.lock
-EXTRAS="test,ray,robot"
+EXTRAS="test,ray,robot,so101"
 # This checkout and its LeRobot plugin distributions (plugins/*: LeRobot finds them by their names), editable.
 EDITABLES=(-e ".[$EXTRAS]")
 for plugin in plugins/*/; do EDITABLES+=(-e "$plugin"); done
@@ -56,7 +56,7 @@ install_system_packages() {
 
 lock_lines() { grep -v -E '^\s*(#|$)' "$LOCK" | sed 's/\s*#.*//' | tr '[:upper:]_' '[:lower:]-' | sort; }
 installed_lines() {
-  "$VENV/bin/python" -m pip freeze --all --exclude-editable 2>/dev/null | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_])' \
+  "$VENV/bin/python" -m pip freeze --all --exclude-editable 2>/dev/null | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo)' \
     | tr '[:upper:]_' '[:lower:]-' | sort
 }
 
@@ -103,7 +103,7 @@ refresh_lock() {
     echo "# The whole resolved package set for adademo-lerobot (with extras [$EXTRAS]); setup.sh and CI install exactly this."
     echo "# Resolved $(date -u +%Y-%m-%d) on $(uname -m) Linux, $("$tmp/venv/bin/python" -V). Refresh deliberately:"
     echo "# bash setup.sh lock, then check the new set with bash setup.sh test and bash setup.sh quickstart (README)."
-    "$tmp/venv/bin/python" -m pip freeze --all --exclude-editable | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_])'
+    "$tmp/venv/bin/python" -m pip freeze --all --exclude-editable | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo)'
   } > "$LOCK.new"
   if [ -f "$LOCK" ]; then diff <(grep -v '^#' "$LOCK") <(grep -v '^#' "$LOCK.new") || true; fi
   mv "$LOCK.new" "$LOCK"

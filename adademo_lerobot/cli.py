@@ -94,6 +94,13 @@ def _pop_arg(name: str, argv: list[str]) -> tuple[str | None, list[str]]:
     return value, rest
 
 
+def dict_fields(config_cls: type) -> list[str]:
+    """Dotted paths of dict fields given flag by flag: a LeRobot env's config in `--suite.env.type=so101
+    --suite.env.random_block_position=true` (the lerobot_env suite builds it with LeRobot's own registry)."""
+    hints = typing.get_type_hints(config_cls) if dataclasses.is_dataclass(config_cls) else {}
+    return ["suite.env"] if "suite" in hints else []
+
+
 def _fold_choice_args(args: list[str], paths: list[str]) -> list[str]:
     """`--train.policy.type=act --train.policy.dim_model=64` -> `--train.policy={"type": "act", ...}` (values
     stay strings: the first parse only needs to know what was given)."""
@@ -162,7 +169,7 @@ def parse_light(config_cls: type, argv: list[str], known_only: bool = False) -> 
     from draccus.argparsing import ArgumentParser
 
     config_path, args = _pop_arg("config_path", argv)
-    args = _fold_choice_args(args, list(choice_fields(config_cls)))
+    args = _fold_choice_args(args, [*choice_fields(config_cls), *dict_fields(config_cls)])
     with tempfile.TemporaryDirectory() as tmp:
         config_path = retyped_recipe(config_cls, config_path, args, tmp)
         if not known_only:
@@ -185,6 +192,7 @@ def parse_config(config_cls: type, argv: list[str]) -> Any:
     if choices:
         config_cls = with_lerobot_types(config_cls, {p: lerobot_choice_type(k) for p, k in choices.items()})
     config_path, args = _pop_arg("config_path", argv)
+    args = _fold_choice_args(args, dict_fields(config_cls))
     if not hasattr(config_cls, "__get_path_fields__"):
         with tempfile.TemporaryDirectory() as tmp:
             config_path = retyped_recipe(config_cls, config_path, args, tmp)

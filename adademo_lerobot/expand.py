@@ -31,6 +31,7 @@ from adademo_lerobot.strategies.base import RoundContext
 from adademo_lerobot.strategies.task_only import estimate_success
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.tables import table
+from adademo_lerobot.takeover import check_can_take_over
 
 
 def demo_start_settings(cfg) -> dict:
@@ -148,7 +149,7 @@ def run_expand(
         if not cfg.plan_only:
             cfg.collector.validate(suite)
             if cfg.demo_start == "takeover":
-                cfg.collector.check_acts_mid_episode(suite)
+                check_can_take_over(suite, cfg.collector)
         if needs_policy:
             from adademo_lerobot.policy import check_policy
 

@@ -58,7 +58,7 @@ from adademo_lerobot.start import (
 )
 from adademo_lerobot.strategies import StrategyConfig, default_strategy
 from adademo_lerobot.suites import SuiteConfig, TaskSuite, make_suite, suite_config_from_dict
-from adademo_lerobot.takeover import TakeoverArgs
+from adademo_lerobot.takeover import TakeoverArgs, check_can_take_over
 
 STEPS_SCHEDULES = ("constant", "proportional")
 
@@ -334,7 +334,7 @@ def checked_suite_and_start(cfg: RunConfig, run_dir: Path) -> tuple[TaskSuite, S
     suite = make_suite(suite_config)
     cfg.collector.validate(suite)
     if cfg.demo_start == "takeover":
-        cfg.collector.check_acts_mid_episode(suite)
+        check_can_take_over(suite, cfg.collector)
     make_sampling_scheme(
         cfg.train.sampler, cfg.train.min_task_weight, len(suite.tasks), cfg.train.sampler_alpha
     )

@@ -146,7 +146,7 @@ def choose_suite(root: Path, requested: SuiteConfig, requested_is_default: bool)
     that says nothing; suite flags that contradict the dataset's suite.json are refused."""
     stored = try_load_suite_config(root) if (root / SUITE_FILE).exists() else None
     if stored is not None:
-        if not requested_is_default and requested.to_dict() != stored.to_dict():
+        if not requested_is_default:
             check_same_suite(stored, requested)
         return stored
     if not requested_is_default:

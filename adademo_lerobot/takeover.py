@@ -68,6 +68,16 @@ def check_demo_start(demo_start: str, takeover: TakeoverArgs) -> None:
     takeover.validate()
 
 
+def check_can_take_over(suite, collector_config) -> None:
+    """Corrections need the suite to restore the whole state at any step and an expert that acts from any state."""
+    if not suite.restores_any_state:
+        raise AdaDemoError(
+            f"--demo_start=takeover: the {suite.name} suite restores initial states by reset seed only, not the "
+            "whole state at any step; corrections need a suite that does (metaworld, fetch, adroit)"
+        )
+    collector_config.check_acts_mid_episode(suite)
+
+
 @dataclass
 class TakeoverPoint:
     """Where the expert takes over a failed rollout: the step, the whole state there and the rule that chose it."""

@@ -42,6 +42,7 @@ LAYERS = [
     ("adademo_lerobot.evaluation", 2),
     ("adademo_lerobot.executors", 2),
     ("adademo_lerobot.takeover", 2),
+    ("adademo_lerobot.contrib", 2),
     # strategies (Algorithm 1)
     ("adademo_lerobot.algorithm", 3),
     ("adademo_lerobot.strategies", 3),

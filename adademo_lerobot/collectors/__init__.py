@@ -1,6 +1,7 @@
-"""Expert collectors. Importing this package registers `--collector.type=scripted|policy`."""
+"""Expert collectors. Importing this package registers `--collector.type=scripted|policy|callable`."""
 
 from adademo_lerobot.collectors.base import CollectorConfig, ExpertCollector, SimulatedExpertCollector
+from adademo_lerobot.collectors.callable import CallableCollectorConfig
 from adademo_lerobot.collectors.checkpoint import PolicyCollectorConfig
 from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig
 from adademo_lerobot.suites.base import TaskSuite
@@ -11,6 +12,7 @@ def make_collector(config: CollectorConfig, suite: TaskSuite) -> ExpertCollector
 
 
 __all__ = [
+    "CallableCollectorConfig",
     "CollectorConfig",
     "ExpertCollector",
     "PolicyCollectorConfig",

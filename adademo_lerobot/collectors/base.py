@@ -136,7 +136,12 @@ class SimulatedExpertCollector:
             noise_rng = np.random.default_rng(retry_noise_seed(seed, attempt))
             noise = self.config.retry_action_noise if attempt > 0 else 0.0
             obs, _ = env.reset(options=start)
-            start_vector = env.unwrapped.get_state() if start_state is None else np.asarray(start_state)
+            if start_state is not None:
+                start_vector = np.asarray(start_state)
+            elif self.suite.restores_any_state:
+                start_vector = env.unwrapped.get_state()  # the whole state at the episode's start
+            else:  # a suite that restores initial states only: that is the whole start it knows
+                start_vector = result.initial_state
             steps_after_success = None
             while True:
                 action = np.asarray(expert(obs), dtype=np.float64)

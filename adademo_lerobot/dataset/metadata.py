@@ -171,7 +171,7 @@ def read_episode_metadata(root: str | Path) -> pd.DataFrame:
 
 
 def check_same_suite(stored: SuiteConfig, requested: SuiteConfig) -> None:
-    a, b = stored.to_dict(), requested.to_dict()
+    a, b = stored.canonical().to_dict(), requested.canonical().to_dict()
     diffs = [
         f"{k}: dataset has {a.get(k)!r}, command has {b.get(k)!r}"
         for k in sorted(set(a) | set(b))

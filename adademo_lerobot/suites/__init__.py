@@ -1,5 +1,5 @@
-"""Task suites: MetaWorld (default, CPU), Fetch and Adroit (gymnasium-robotics). Importing this package registers
-their configs (`--suite.type=...`); each config builds its own suite."""
+"""Task suites: MetaWorld (default, CPU), Fetch and Adroit (gymnasium-robotics), and any LeRobot simulation env
+(`lerobot_env`). Importing this package registers their configs (`--suite.type=...`); each builds its own suite."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites.adroit import AdroitSuiteConfig
 from adademo_lerobot.suites.base import SuiteConfig, TaskSuite
 from adademo_lerobot.suites.fetch import FetchSuiteConfig
+from adademo_lerobot.suites.lerobot_env import LeRobotEnvSuiteConfig
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
 
@@ -34,6 +35,7 @@ def suite_config_from_dict(data: dict[str, Any]) -> SuiteConfig:
 __all__ = [
     "AdroitSuiteConfig",
     "FetchSuiteConfig",
+    "LeRobotEnvSuiteConfig",
     "MetaWorldSuiteConfig",
     "SuiteConfig",
     "TaskSuite",

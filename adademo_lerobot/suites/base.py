@@ -68,6 +68,10 @@ class SuiteConfig(draccus.ChoiceRegistry, abc.ABC):
     def to_dict(self) -> dict[str, Any]:
         return {"type": self.type, **dataclasses.asdict(self)}
 
+    def canonical(self) -> SuiteConfig:
+        """The config as a built suite stores it (defaults resolved), to compare a dataset's with flags."""
+        return self
+
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
 
@@ -305,7 +309,7 @@ class SuiteTaskEnv(gym.Env):
     def step(self, action):
         if self._holding:
             return self._final_obs, 0.0, False, False, {"is_success": False, "task": self.task}
-        action = np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
+        action = np.clip(np.asarray(action, dtype=np.float32), self.action_space.low, self.action_space.high)
         raw, reward, success = self._raw_step(action)
         self._steps += 1
         terminated = success and self.terminate_on_success
@@ -360,6 +364,9 @@ class SuiteBase:
 
     env_class: type[SuiteTaskEnv]
     layout_dim: int  # environment_state without the task one-hot
+    restores_any_state = (
+        True  # `get_state()` / `reset(options={"state": ...})` at any step (corrections need it)
+    )
 
     @property
     def env_state_dim(self) -> int:
