@@ -36,6 +36,9 @@ class CollectionResult:
     env_steps: int
     failed_attempts: int = 0
     start_step: int = 0  # a correction's step within the failed rollout (0: from the initial state)
+    takeover_failed: bool = (
+        False  # the expert failed from the takeover state (any demonstration is a fallback)
+    )
 
 
 @dataclass
@@ -80,6 +83,9 @@ class TaskRoundRecord:
     collection_env_steps: int = 0  # env steps under the expert's control, failed attempts included
     demo_frames: int = 0  # frames of the demonstrations added (a correction's: from its takeover step)
     corrections: int = 0  # demonstrations that start mid-episode (--demo_start=takeover)
+    takeover_failures: int = (
+        0  # takeover states the expert failed from (answered from the initial state, or not)
+    )
     wall_seconds: float = 0.0
     expert_failed_states: list[dict] = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # strategy-specific figures (e.g. the budgeted posterior)

@@ -18,6 +18,7 @@ exactly that state, and the dataset records it (`adademo/start_state`) so that i
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
@@ -28,6 +29,7 @@ from adademo_lerobot.records import RolloutTrace
 
 DEMO_STARTS = ("initial", "takeover")
 TAKEOVER_RULES = ("disagreement", "backoff")
+FALLBACKS = ("initial", "none")
 
 
 @dataclass
@@ -44,6 +46,12 @@ class TakeoverArgs:
     backoff: int = 10
     # backoff: the rollout has stalled once its observation stays within this distance of the final one.
     stall_tolerance: float = 0.01
+    # Expert attempts from the takeover state (a retry from the same bad state rarely succeeds: 1 of 13 in
+    # benchmarks/results/takeover_pilot.md, each failure costing a whole step limit of expert frames).
+    attempts: int = 1
+    # When every attempt fails: `initial`: the expert demonstrates from the failed episode's initial state instead
+    # (the paper's answer to the failure); `none`: the failure gets no demonstration.
+    fallback: str = "initial"
 
     def validate(self) -> None:
         if self.rule not in TAKEOVER_RULES:
@@ -55,11 +63,15 @@ class TakeoverArgs:
                 raise AdaDemoError(f"--takeover.{name} must be >= 0, got {getattr(self, name)}")
         if self.consecutive < 1:
             raise AdaDemoError(f"--takeover.consecutive must be >= 1, got {self.consecutive}")
+        if self.attempts < 1:
+            raise AdaDemoError(f"--takeover.attempts must be >= 1, got {self.attempts}")
+        if self.fallback not in FALLBACKS:
+            raise AdaDemoError(
+                f"unknown --takeover.fallback={self.fallback!r}; choose one of {', '.join(FALLBACKS)}"
+            )
 
     def to_dict(self) -> dict:
-        return {
-            k: getattr(self, k) for k in ("rule", "threshold", "consecutive", "backoff", "stall_tolerance")
-        }
+        return dataclasses.asdict(self)
 
 
 def check_demo_start(demo_start: str, takeover: TakeoverArgs) -> None:

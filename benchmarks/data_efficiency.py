@@ -51,7 +51,15 @@ CANDIDATES = (
     "peg-insert-side-v3,window-open-v3,window-close-v3,button-press-v3,coffee-button-v3,plate-slide-v3,"
     "handle-press-v3,faucet-open-v3,sweep-into-v3"
 )
-TAKEOVER = ["--demo_start=takeover", "--takeover.backoff=10"]
+# Corrections: one attempt from the takeover state, then (if the expert fails there) a demonstration from the
+# failed episode's initial state; `_retry3` is the first protocol (3 attempts there, nothing if they fail).
+TAKEOVER = [
+    "--demo_start=takeover",
+    "--takeover.backoff=10",
+    "--takeover.attempts=1",
+    "--takeover.fallback=initial",
+]
+RETRY3 = ["--takeover.attempts=3", "--takeover.fallback=none"]
 DISAGREEMENT = ["--takeover.rule=disagreement", "--takeover.threshold=1.5", "--takeover.consecutive=5"]
 BACKOFF = ["--takeover.rule=backoff", "--takeover.stall_tolerance=0.01"]
 ALL_ARMS = {
@@ -73,6 +81,13 @@ ALL_ARMS = {
         *TAKEOVER,
         *BACKOFF,
     ],
+    "budgeted_takeover_retry3": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        *TAKEOVER,
+        *DISAGREEMENT,
+        *RETRY3,
+    ],
 }
 LABELS = {
     "uniform": "Uniform",
@@ -83,6 +98,7 @@ LABELS = {
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
+    "budgeted_takeover_retry3": "Budgeted + takeover corrections (disagreement, 3 attempts there, no fallback)",
 }
 TORCH_THREADS: list[str] = []
 
@@ -348,7 +364,12 @@ TITLES = {
     "data_efficiency": "Data efficiency on MetaWorld: Uniform, AdaDemo, AdaDemo + tempered sampler, budgeted",
     "corrections": "Corrections from the point of failure on MetaWorld: takeover arms against Uniform and budgeted",
 }
-TAKEOVER_ARMS = {"budgeted_takeover", "adademo_takeover", "budgeted_takeover_backoff"}
+TAKEOVER_ARMS = {
+    "budgeted_takeover",
+    "adademo_takeover",
+    "budgeted_takeover_backoff",
+    "budgeted_takeover_retry3",
+}
 
 
 def main() -> None:

@@ -162,8 +162,12 @@ def correction_lines(
     for t in tasks:
         ledger = [row for s in seeds for row in runs[(arm, s)].ledger if row["task"] == t]
         uniform = [row for s in seeds for row in runs[("uniform", s)].ledger if row["task"] == t]
-        tried = sum(r["demos_added"] + r["expert_failures"] for r in ledger)
-        failed = sum(r["expert_failures"] for r in ledger)
+        if any("takeover_failures" in r for r in ledger):  # takeover failures, answered from the start or not
+            failed = sum(r["takeover_failures"] for r in ledger)
+            tried = sum(r["corrections"] for r in ledger) + failed
+        else:  # the first protocol: a failed takeover got nothing (an expert failure)
+            failed = sum(r["expert_failures"] for r in ledger)
+            tried = sum(r["demos_added"] + r["expert_failures"] for r in ledger)
         frames = sum(r.get("demo_frames", 0) for r in ledger) / max(1, sum(r["demos_added"] for r in ledger))
         uniform_frames = sum(r["collection_env_steps"] for r in uniform) / max(
             1, sum(r["demos_added"] for r in uniform)

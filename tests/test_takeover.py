@@ -78,3 +78,32 @@ def test_takeover_step_under_each_rule():
 def test_bad_takeover_flags(demo_start, changes, match):
     with pytest.raises(AdaDemoError, match=match.replace("[", r"\[")):
         check_demo_start(demo_start, TakeoverArgs(**changes))
+
+
+def test_a_takeover_state_the_expert_fails_from_falls_back_to_the_initial_state():
+    """MetaWorld's push expert cannot push with the gripper already closed: from such a state the correction
+    fails after `takeover.attempts` attempts, and (fallback `initial`) the expert demonstrates from the failed
+    episode's initial state instead; with fallback `none` the failure gets nothing."""
+    from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+    from adademo_lerobot.suites import make_suite
+    from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
+
+    suite = make_suite(MetaWorldSuiteConfig(tasks="push-v3"))
+    env = suite.make_env("push-v3", terminate_on_success=False)
+    initial = suite.sample_initial_state("push-v3", 3)
+    env.reset(options={"initial_state": initial})
+    for _ in range(30):  # drift away with the gripper closed
+        env.step(np.array([0.3, -0.2, 0.1, 0.9], np.float32))
+    stuck = env.get_state()
+    collector = make_collector(ScriptedCollectorConfig(max_attempts=2), suite)
+
+    result = collector.collect("push-v3", initial, 3, stuck, TakeoverArgs(attempts=1, fallback="initial"))
+    assert result.takeover_failed and result.demonstration is not None
+    demo = result.demonstration
+    assert not demo.is_correction and demo.start_step == 0 and result.start_step == 0
+    assert result.attempts >= 2 and demo.attempts == result.attempts  # one there, then from the start
+    assert result.env_steps >= 300 + len(demo.frames)  # the failed attempt ran the whole step limit
+
+    result = collector.collect("push-v3", initial, 3, stuck, TakeoverArgs(attempts=2, fallback="none"))
+    assert result.takeover_failed and result.demonstration is None and result.attempts == 2
+    assert result.start_step == 30

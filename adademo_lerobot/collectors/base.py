@@ -20,6 +20,7 @@ from adademo_lerobot.recording import EpisodeRecorder
 from adademo_lerobot.records import CollectionResult, Demonstration
 from adademo_lerobot.seeds import retry_noise_seed
 from adademo_lerobot.suites.base import TaskSuite, cached_for_task, full_state_step
+from adademo_lerobot.takeover import TakeoverArgs
 
 
 @dataclass
@@ -119,25 +120,44 @@ class SimulatedExpertCollector:
         )
 
     def collect(
-        self, task: str, initial_state: np.ndarray, seed: int, start_state: np.ndarray | None = None
+        self,
+        task: str,
+        initial_state: np.ndarray,
+        seed: int,
+        start_state: np.ndarray | None = None,
+        takeover: TakeoverArgs | None = None,
     ) -> CollectionResult:
+        """A demonstration from `initial_state`; for a correction, from `start_state` (`takeover.attempts`
+        attempts) and, if the expert fails there, from `initial_state` (`takeover.fallback`)."""
         env = self._env(task)
         result = CollectionResult(task, np.asarray(initial_state, np.float64), seed, None, 0, 0)
         if start_state is not None:
+            takeover = takeover or TakeoverArgs()
             result.start_step = full_state_step(start_state)
-        # A correction is an episode of its own: the expert gets the whole step limit from the takeover state.
-        start = (
-            {"initial_state": initial_state}
-            if start_state is None
-            else {"state": start_state, "new_episode": True}
-        )
-        for attempt in range(self.config.max_attempts):
+            # A correction is an episode of its own: the expert gets the whole step limit from the takeover state.
+            start = {"state": start_state, "new_episode": True}
+            if self._attempts(env, task, result, start, takeover.attempts, np.asarray(start_state)):
+                return result
+            result.takeover_failed = True
+            if takeover.fallback == "none":
+                return result
+            result.start_step = 0
+        self._attempts(env, task, result, {"initial_state": initial_state}, self.config.max_attempts, None)
+        return result
+
+    def _attempts(
+        self, env, task: str, result: CollectionResult, start: dict, n: int, correction_from
+    ) -> bool:
+        """Up to n attempts from `start` (the first the pure expert, then with seeded noise); True with a
+        demonstration in `result`."""
+        seed = result.seed
+        for attempt in range(n):
             expert = self.expert_for(task)
             noise_rng = np.random.default_rng(retry_noise_seed(seed, attempt))
             noise = self.config.retry_action_noise if attempt > 0 else 0.0
             obs, _ = env.reset(options=start)
-            if start_state is not None:
-                start_vector = np.asarray(start_state)
+            if correction_from is not None:
+                start_vector = correction_from
             elif self.suite.restores_any_state:
                 start_vector = env.unwrapped.get_state()  # the whole state at the episode's start
             else:  # a suite that restores initial states only: that is the whole start it knows
@@ -157,21 +177,21 @@ class SimulatedExpertCollector:
                     break
                 if truncated:
                     break
-            result.attempts = attempt + 1
+            result.attempts += 1
             if env.succeeded:
                 result.demonstration = Demonstration(
                     task,
                     result.initial_state,
                     seed,
                     env.frames,
-                    attempt + 1,
+                    result.attempts,
                     result.start_step,
                     np.asarray(start_vector, np.float64),
-                    is_correction=start_state is not None,
+                    is_correction=correction_from is not None,
                 )
-                return result
+                return True
             result.failed_attempts += 1
-        return result
+        return False
 
     def close(self) -> None:
         for env in self._envs.values():

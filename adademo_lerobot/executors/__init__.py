@@ -75,7 +75,13 @@ class Executor(Protocol):
 
     def use_policy(self, path: str | None) -> None: ...
     def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> Pending: ...
-    def collect(self, task: str, seed: int, start_state: list[float] | None = None) -> Pending: ...
+    def collect(
+        self,
+        task: str,
+        seed: int,
+        start_state: list[float] | None = None,
+        takeover: TakeoverArgs | None = None,
+    ) -> Pending: ...
     def close(self) -> None: ...
 
 
@@ -107,8 +113,14 @@ class LocalExecutor:
         policy = self._policy
         return Lazy(lambda: self.worker.evaluate(task, list(seeds), policy, takeover))
 
-    def collect(self, task: str, seed: int, start_state: list[float] | None = None) -> Lazy:
-        return Lazy(lambda: self.worker.collect(task, seed, start_state))
+    def collect(
+        self,
+        task: str,
+        seed: int,
+        start_state: list[float] | None = None,
+        takeover: TakeoverArgs | None = None,
+    ) -> Lazy:
+        return Lazy(lambda: self.worker.collect(task, seed, start_state, takeover))
 
     def close(self) -> None:
         self.worker.close()

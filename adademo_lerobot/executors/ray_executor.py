@@ -106,8 +106,14 @@ class RayExecutor:
     def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> RayPending:
         return self._submit("evaluate", task, list(seeds), self._policy, takeover)
 
-    def collect(self, task: str, seed: int, start_state: list[float] | None = None) -> RayPending:
-        return self._submit("collect", task, seed, start_state)
+    def collect(
+        self,
+        task: str,
+        seed: int,
+        start_state: list[float] | None = None,
+        takeover: TakeoverArgs | None = None,
+    ) -> RayPending:
+        return self._submit("collect", task, seed, start_state, takeover)
 
     def worker_pids(self) -> list[int]:
         import ray

@@ -80,13 +80,21 @@ class EpisodeWorker:
             records.append(record)
         return records
 
-    def collect(self, task: str, seed: int, start_state: list[float] | None = None) -> CollectionResult:
-        """A demonstration from the seed's initial state, or, for a correction, from `start_state`."""
+    def collect(
+        self,
+        task: str,
+        seed: int,
+        start_state: list[float] | None = None,
+        takeover: TakeoverArgs | None = None,
+    ) -> CollectionResult:
+        """A demonstration from the seed's initial state, or, for a correction, from `start_state` (`takeover`:
+        how many attempts there, and what when they fail)."""
         from adademo_lerobot.evaluation import one_torch_thread  # a policy expert acts as it would locally
 
         start = None if start_state is None else np.asarray(start_state, np.float64)
+        initial = self.suite.sample_initial_state(task, seed)
         with one_torch_thread():
-            return self.collector.collect(task, self.suite.sample_initial_state(task, seed), seed, start)
+            return self.collector.collect(task, initial, seed, start, takeover)
 
     def pid(self) -> int:
         return os.getpid()

@@ -33,7 +33,7 @@ from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.ledger import RoundJournal
 from adademo_lerobot.records import Demonstration, EpisodeRecord, TaskRoundRecord
 from adademo_lerobot.seeds import fresh_state_seed
-from adademo_lerobot.suites.base import TaskSuite
+from adademo_lerobot.suites.base import TaskSuite, full_state_step
 from adademo_lerobot.takeover import TakeoverArgs
 
 # A task whose expert keeps failing stops after this many fresh initial states per requested demo.
@@ -340,7 +340,7 @@ class RoundContext:
                 self._pending[(task, seed)] = self._collect(task, seed)
 
     def _collect(self, task: str, seed: int) -> Pending:
-        return self.executor.collect(task, seed, self._takeover_states.get((task, seed)))
+        return self.executor.collect(task, seed, self._takeover_states.get((task, seed)), self.takeover)
 
     def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
         """Ask the expert for a demonstration from exactly this seed's initial state (at most once a round)."""
@@ -351,20 +351,25 @@ class RoundContext:
                 record.collection_env_steps += entry["steps"]
                 record.demo_frames += entry.get("frames", 0)
                 record.corrections += entry.get("start_step") is not None
+                record.takeover_failures += entry.get("takeover_failed", False)
             return True
         failures = self.journal.expert_failures(task) if self.journal else {}
         if seed in failures:
+            record.takeover_failures += failures[seed].get("takeover_failed", False)
             self._count_expert_failure(record, failures[seed])
             return False
         pending = self._pending.pop((task, seed), None) or self._collect(task, seed)
         result = pending.result()
         record.collection_env_steps += result.env_steps
+        record.takeover_failures += result.takeover_failed
         demo = result.demonstration
         if demo is not None:
             entry = {"type": "demo", "task": task, "seed": int(seed), "steps": result.env_steps}
             entry["frames"] = len(demo.frames)
             if demo.is_correction:
                 entry["start_step"] = demo.start_step
+            if result.takeover_failed:
+                entry["takeover_failed"] = True  # then a demonstration from the initial state
             self._journal(entry)
             self._appender.add(task, demo)
             self._committed.setdefault(task, set()).add(seed)
@@ -380,8 +385,9 @@ class RoundContext:
             "steps": result.env_steps,
             "initial_state": result.initial_state.tolist(),
         }
-        if self._takeover_states.get((task, seed)) is not None:
-            entry["start_step"] = result.start_step  # a correction's takeover state the expert failed from
+        if result.takeover_failed:
+            entry["takeover_failed"] = True
+            entry["start_step"] = full_state_step(self._takeover_states[(task, seed)])  # where it failed from
         self._journal(entry)
         self._count_expert_failure(record, entry, count_steps=False)
         return False
