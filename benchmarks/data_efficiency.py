@@ -344,7 +344,7 @@ def phase_report(seeds: list[int], arms: list[str]) -> None:
         f"{machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary under "
         f"`results/{SUMMARIES.name}/`). Runs of one machine only: trained policies differ across CPUs, so seeds "
         "are paired only within a folder.",
-        f"Recipe `recipes/budgeted.yaml` (tasks {', '.join(tasks)}): per seed every arm branches from one shared "
+        f"Recipe `{RECIPE.relative_to(ROOT)}` (tasks {', '.join(tasks)}): per seed every arm branches from one shared "
         "round 0 (dataset, policy, evaluation), trains each round from scratch with the same training seed, and is "
         "evaluated on the same fixed initial states; arms differ only in the flags of the script's `ALL_ARMS`.",
     ]
@@ -373,7 +373,7 @@ TAKEOVER_ARMS = {
 
 
 def main() -> None:
-    global SUMMARIES
+    global SUMMARIES, RECIPE
     parser = argparse.ArgumentParser()
     parser.add_argument("phase", choices=["select", "noise", "arms", "export", "report"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -387,12 +387,18 @@ def main() -> None:
     )
     parser.add_argument("--train_seeds", type=int, nargs="+", default=[1000, 2000], help="noise: which ones")
     parser.add_argument(
+        "--recipe",
+        type=Path,
+        default=RECIPE,
+        help="the recipe every arm runs (its tasks, budgets and training); default recipes/budgeted.yaml",
+    )
+    parser.add_argument(
         "--summaries",
         default=SUMMARIES.name,
         help="folder under benchmarks/results for the summaries (runs of one machine, paired by seed)",
     )
     args = parser.parse_args()
-    SUMMARIES = RESULTS / args.summaries
+    SUMMARIES, RECIPE = RESULTS / args.summaries, args.recipe.resolve()
     SUMMARIES.mkdir(parents=True, exist_ok=True)
     if args.torch_threads is not None:
         TORCH_THREADS.append(f"--torch_threads={args.torch_threads}")
