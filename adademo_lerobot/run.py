@@ -286,6 +286,12 @@ class RunData:
             checkpoint and Path(checkpoint),
         )
 
+    @classmethod
+    def collected(cls, run_dir: Path) -> RunData:
+        """Demonstrations the expert collects into the run folder (relative to it, so a copied run folder
+        keeps working on its own copy)."""
+        return cls(run_dir / "dataset", f"local/{run_dir.name}", 0, None)
+
 
 def run(cfg: RunConfig) -> Path:
     """Algorithm 1 end to end. Every stage is run through `state.stage`, which skips a stage a previous
@@ -296,8 +302,11 @@ def run(cfg: RunConfig) -> Path:
     run_dir.mkdir(parents=True, exist_ok=True)
     with exclusive_use(run_dir, "adademo-run"), Episodes(cfg, suite) as episodes:
         state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()))
-        first = "start" if cfg.dataset.repo_id is not None else "collect"  # the user's data, or collected
-        data = RunData.of_stage(state.stage(first, initial_data, cfg, suite, episodes, run_dir, start))
+        if cfg.dataset.repo_id is not None:  # the user's data
+            data = RunData.of_stage(state.stage("start", begin_from, cfg, start, run_dir))
+        else:
+            data = RunData.collected(run_dir)
+            state.stage("collect", collect_initial, cfg, suite, episodes, data.root, data.repo_id)
         checkpoint = data.checkpoint or Path(state.stage("train-0", train_round, cfg, run_dir, data, 0))
         state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
         for i in range(1, cfg.rounds + 1):
@@ -371,21 +380,6 @@ class Episodes:
     def __exit__(self, *exc) -> None:
         if self._executor is not None:
             self._executor.close()
-
-
-def initial_data(cfg: RunConfig, suite, episodes: Episodes, run_dir: Path, start: Start | None) -> dict:
-    """Round 0's data: the user's dataset (and checkpoint), or demonstrations collected by the expert."""
-    if cfg.dataset.repo_id is not None:
-        return begin_from(cfg, start, run_dir)
-    root, repo_id = run_dir / "dataset", f"local/{run_dir.name}"
-    demos = collect_initial(cfg, suite, episodes, root, repo_id)
-    return {
-        "dataset_root": str(root),
-        "repo_id": repo_id,
-        "base_round": 0,
-        "checkpoint": None,
-        "demos": demos,
-    }
 
 
 def begin_from(cfg: RunConfig, start: Start, run_dir: Path) -> dict:
