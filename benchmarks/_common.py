@@ -56,14 +56,14 @@ def machine_line() -> str:
     import os
     from importlib import metadata
 
+    info = Path("/proc/cpuinfo").read_text().splitlines()
     cpu = next(
-        (
-            line.split(":", 1)[1].strip()
-            for line in Path("/proc/cpuinfo").read_text().splitlines()
-            if line.startswith("model name")
-        ),
+        (line.split(":", 1)[1].strip() for line in info if line.startswith("model name")),
         platform.processor() or "unknown CPU",
     )
+    # Two machines named "AMD EPYC" trained different policies from the same seed: the vector unit differs.
+    flags = next((line.split(":", 1)[1].split() for line in info if line.startswith("flags")), [])
+    cpu += " (AVX-512)" if "avx512f" in flags else " (AVX2)" if "avx2" in flags else ""
     versions = ", ".join(f"{p} {metadata.version(p)}" for p in ("lerobot", "torch", "mujoco", "metaworld"))
     return (
         f"date {time.strftime('%Y-%m-%d')}; machine: {platform.machine()} {cpu}, {os.cpu_count()} CPU cores, "

@@ -268,6 +268,7 @@ def export_run(out: Path, seed: int, arm: str) -> Path:
     """A finished arm's figures, small enough to commit: success and demos per task and round, the ledger (without
     machine paths and expert-failed states), the run's settings and the machine."""
     from adademo_lerobot.dataset.metadata import read_episode_metadata
+    from adademo_lerobot.failure_map import run_predictability
     from adademo_lerobot.files import atomic_write_text
     from adademo_lerobot.ledger import read_ledger
     from adademo_lerobot.report import load_run
@@ -302,6 +303,11 @@ def export_run(out: Path, seed: int, arm: str) -> Path:
                 strict=True,
             )
         ],
+        # How well the initial state predicts failure, per task, over every state each policy was evaluated on.
+        "predictability": {
+            p.task: {"auc": p.auc, "low": p.low, "high": p.high, "states": p.states, "failures": p.failures}
+            for p in run_predictability(run_dir, run_dir / "dataset", run.tasks)[0]
+        },
     }
     path = SUMMARIES / f"seed{seed}-{arm}.json"
     atomic_write_text(path, json.dumps(summary, indent=1) + "\n")

@@ -36,9 +36,9 @@ class Run:
     success: np.ndarray  # task x round
     added: dict[str, np.ndarray]  # measure -> cumulative added per task after round 0..R (starts at 0)
     ledger: list[dict]
-    episodes: list[
-        dict
-    ]  # per episode of the expansion rounds: task, round, source, start_step, length (if exported)
+    # per episode of the expansion rounds: task, round, source, start_step, length (if exported)
+    episodes: list[dict]
+    predictability: dict[str, dict]  # task -> failure predictability from the initial state (if exported)
 
     @property
     def average(self) -> np.ndarray:  # by round
@@ -57,7 +57,14 @@ def load_run(summary: dict) -> Run:
         per_round["episodes"][r] += row["demos_added"] + row.get("eval_episodes_run", row["eval_episodes"])
     added = {m: np.cumsum(v) / len(tasks) for m, v in per_round.items()}
     return Run(
-        summary["arm"], summary["seed"], tasks, success, added, summary["ledger"], summary.get("episodes", [])
+        summary["arm"],
+        summary["seed"],
+        tasks,
+        success,
+        added,
+        summary["ledger"],
+        summary.get("episodes", []),
+        summary.get("predictability", {}),
     )
 
 
@@ -185,6 +192,70 @@ def correction_lines(
         "| Uniform's expert frames per demo |",
         "| --- | --- | --- | --- | --- |",
         *rows,
+    ]
+
+
+def spearman(a: np.ndarray, b: np.ndarray) -> float:
+    """Rank correlation of two paired samples (ties get their mean rank)."""
+    import pandas as pd
+
+    return float(np.corrcoef(pd.Series(a).rank(), pd.Series(b).rank())[0, 1])
+
+
+def predictability_lines(
+    runs: dict[tuple[str, int], Run],
+    arms: list[str],
+    seeds_of: dict[str, list[int]],
+    tasks: list[str],
+    labels: dict[str, str],
+) -> list[str]:
+    """Does failure predictability from the initial state tell where adaptive collection gains? Per task the AUC
+    (mean over every exported run's estimate) beside each arm's paired gain over Uniform after round 3, and the
+    rank correlation over tasks."""
+    aucs = {
+        t: [
+            r.predictability[t]["auc"]
+            for r in runs.values()
+            if r.predictability.get(t, {}).get("auc") is not None
+        ]
+        for t in tasks
+    }
+    if not any(aucs.values()):
+        return ["No summary has failure predictability yet (re-export with `data_efficiency.py export`)."]
+    mean_auc = np.array([np.mean(aucs[t]) if aucs[t] else np.nan for t in tasks])
+    gains = {}
+    for arm in arms:
+        seeds = [s for s in seeds_of[arm] if s in seeds_of.get("uniform", [])]
+        if arm != "uniform" and seeds:
+            gains[arm] = np.array(
+                [
+                    100
+                    * np.mean(
+                        [runs[(arm, s)].success[i, -1] - runs[("uniform", s)].success[i, -1] for s in seeds]
+                    )
+                    for i in range(len(tasks))
+                ]
+            )
+    rows = [
+        f"| {t} | {mean_auc[i]:.2f} ({len(aucs[t])}) | "
+        + " | ".join(f"{g[i]:+.0f}" for g in gains.values())
+        + " |"
+        if aucs[t]
+        else f"| {t} | - | " + " | ".join(f"{g[i]:+.0f}" for g in gains.values()) + " |"
+        for i, t in enumerate(tasks)
+    ]
+    known = ~np.isnan(mean_auc)
+    rho = [
+        f"{labels.get(arm, arm)} {spearman(mean_auc[known], g[known]):+.2f}"
+        for arm, g in gains.items()
+        if known.sum() >= 3
+    ]
+    return [
+        "| task | AUC (estimates) | " + " | ".join(f"{labels.get(a, a)}: gain" for a in gains) + " |",
+        "| --- | --- | " + " | ".join("---" for _ in gains) + " |",
+        *rows,
+        "",
+        f"Spearman rank correlation of AUC and gain over {int(known.sum())} tasks: " + "; ".join(rho) + ".",
     ]
 
 
@@ -325,6 +396,16 @@ def write_report(
             lines += correction_lines(
                 runs, arm, [s for s in seeds_of[arm] if s in seeds_of["uniform"]], tasks
             )
+    lines += [
+        "",
+        "## Will adaptive collection help on a task? Failure predictability against gains",
+        "",
+        "Per task: how well the initial state predicts the policy's failure (cross-validated 5-nearest-neighbour "
+        "AUC, `adademo_lerobot/failure_map.py`, mean over the runs' estimates, each over every state its policies "
+        "were evaluated on) and each arm's paired gain over Uniform after round 3, in points.",
+        "",
+        *predictability_lines(runs, arms, seeds_of, tasks, labels),
+    ]
     lines += ["", "## Goals", ""] + goal_lines(comparisons, takeover_arms, labels)
     if common:
         lines += [

@@ -112,7 +112,7 @@ def main() -> None:
     text = (
         "# Takeover pilot: where failed rollouts go wrong and whether the expert can take over there\n\n"
         f"Command: `python benchmarks/takeover_pilot.py --run_dir {args.run_dir} --episodes {args.episodes}`; "
-        f"{time.strftime('%Y-%m-%d')}; {machine_line()}; {time.perf_counter() - started:.0f} s.\n"
+        f"{machine_line()}; {time.perf_counter() - started:.0f} s.\n"
         f"Policy: round 0 of {args.run_dir.name} (the data-efficiency recipe); states: round 1's first "
         f"{args.episodes} expansion states per task. Settings: rule threshold x consecutive -backoff. Every "
         "correction gets the whole step limit from its takeover state.\n\n"
