@@ -8,6 +8,7 @@ from lerobot.configs.policies import PreTrainedConfig
 
 from adademo_lerobot.cli import parse_config, parse_light
 from adademo_lerobot.configs import TrainCommandFlags
+from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.record import RecordConfig
 from adademo_lerobot.run import RunConfig
 from adademo_lerobot.train import AdaDemoTrainConfig
@@ -77,3 +78,21 @@ def test_cosine_lr_schedule_decays_to_one_percent_of_the_policys_rate(tmp_path):
     assert cosine.scheduler.type == "cosine_decay_with_warmup"
     assert cosine.scheduler.peak_lr == 3e-4 and cosine.scheduler.decay_lr == pytest.approx(3e-6)
     assert (cosine.scheduler.num_warmup_steps, cosine.scheduler.num_decay_steps) == (10, 500)
+
+
+@pytest.mark.parametrize(
+    "recipe", sorted(p.name for p in RECIPE.parent.glob("*.yaml") if p.name != "continue_from_checkpoint.yaml")
+)
+def test_every_recipe_parses_in_full_and_validates(recipe):
+    argv = [f"--config_path={RECIPE.parent / recipe}", "--run_dir=/tmp/r"]
+    parse_light(RunConfig, argv).validate()
+    full = parse_config(RunConfig, argv)
+    full.validate()
+    per_round = [v for v in vars(full.strategy).values() if isinstance(v, tuple) and v]
+    assert per_round and all(len(v) == full.rounds for v in per_round)  # E, CAP or B: one per round
+
+
+def test_the_continue_recipe_asks_for_the_users_checkpoint():
+    argv = [f"--config_path={RECIPE.parent / 'continue_from_checkpoint.yaml'}", "--run_dir=/tmp/r"]
+    with pytest.raises(AdaDemoError, match="--policy.path"):
+        parse_light(RunConfig, argv).validate()
