@@ -81,7 +81,8 @@ def test_cosine_lr_schedule_decays_to_one_percent_of_the_policys_rate(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "recipe", sorted(p.name for p in RECIPE.parent.glob("*.yaml") if p.name != "continue_from_checkpoint.yaml")
+    "recipe",
+    sorted(p.name for p in RECIPE.parent.glob("*.yaml") if p.name != "continue_from_checkpoint.yaml"),
 )
 def test_every_recipe_parses_in_full_and_validates(recipe):
     argv = [f"--config_path={RECIPE.parent / recipe}", "--run_dir=/tmp/r"]
