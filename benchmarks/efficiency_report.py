@@ -179,20 +179,27 @@ def correction_lines(
         uniform_frames = sum(r["collection_env_steps"] for r in uniform) / max(
             1, sum(r["demos_added"] for r in uniform)
         )
+        lost = f"{wasted_share(ledger):.0f} % / {wasted_share(uniform):.0f} %"
         steps = [e["start_step"] for s in seeds for e in runs[(arm, s)].episodes if e["task"] == t]
         rows.append(
             f"| {t} | {failed}/{tried} ({100 * failed / max(1, tried):.0f} %) | "
-            f"{np.mean(steps):.0f} | {frames:.0f} | {uniform_frames:.0f} |"
-            if steps
-            else f"| {t} | {failed}/{tried} ({100 * failed / max(1, tried):.0f} %) | - | {frames:.0f} | "
-            f"{uniform_frames:.0f} |"
+            f"{f'{np.mean(steps):.0f}' if steps else '-'} | {frames:.0f} | {uniform_frames:.0f} | {lost} |"
         )
+    everything = [row for s in seeds for row in runs[(arm, s)].ledger]
+    uniform_all = [row for s in seeds for row in runs[("uniform", s)].ledger]
     return [
         "| task | expert failed from the takeover state | mean takeover step | frames per correction "
-        "| Uniform's expert frames per demo |",
-        "| --- | --- | --- | --- | --- |",
+        "| Uniform's expert frames per demo | expert frames in failed attempts: this arm / Uniform |",
+        "| --- | --- | --- | --- | --- | --- |",
         *rows,
+        f"| all | | | | | {wasted_share(everything):.0f} % / {wasted_share(uniform_all):.0f} % |",
     ]
+
+
+def wasted_share(ledger: list[dict]) -> float:
+    """The share of expert frames spent in attempts that failed (not recorded): collection steps not in a demo."""
+    spent = sum(r["collection_env_steps"] for r in ledger)
+    return 100 * (spent - sum(r.get("demo_frames", 0) for r in ledger)) / max(1, spent)
 
 
 def spearman(a: np.ndarray, b: np.ndarray) -> float:
