@@ -180,6 +180,12 @@ class RunState:
             state = json.loads(self.path.read_text())
             for key, default in SETTINGS_ADDED_LATER.items():  # a run started before the setting existed
                 state["settings"].setdefault(key, default)
+            legacy = state["settings"].get("strategy")
+            current = settings.get("strategy")
+            if isinstance(legacy, str) and isinstance(current, dict) and legacy == current.get("type"):
+                # Started before 0.3, when the strategy was a name and its values shared top-level flags that
+                # applied or not by strategy: only the type can be checked.
+                state["settings"]["strategy"] = current
             diffs = sorted(
                 k
                 for k in set(settings) | set(state["settings"])

@@ -185,3 +185,22 @@ def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_
     assert RunState(older, now).done == {"collect": {}}
     with pytest.raises(AdaDemoError, match="lr_schedule"):
         RunState(older, {"strategy": "adademo", "lr_schedule": "cosine"})
+
+
+def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_type_checked(tmp_path):
+    from adademo_lerobot.errors import AdaDemoError
+    from adademo_lerobot.run import RunState
+
+    (tmp_path / "run_state.json").write_text(  # 0.2: the strategy was a name, its values top-level flags
+        json.dumps({"settings": {"strategy": "uniform", "budget": [32, 48]}, "done": {"collect": {}}})
+    )
+    later = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}  # recorded after 0.2
+    now = {"strategy": {"type": "uniform", "demos_per_task": [10, 20], "budget": [32, 48]}, **later}
+    assert RunState(tmp_path, now).done == {"collect": {}}
+    assert json.loads((tmp_path / "run_state.json").read_text())["settings"]["strategy"] == now["strategy"]
+    assert RunState(tmp_path, now).done == {"collect": {}}  # and again, from the settings it now records
+    (tmp_path / "run_state.json").write_text(
+        json.dumps({"settings": {"strategy": "uniform"}, "done": {"collect": {}}})
+    )
+    with pytest.raises(AdaDemoError, match="strategy"):
+        RunState(tmp_path, {"strategy": {"type": "budgeted", "budget": [32, 48]}, **later})
