@@ -283,7 +283,7 @@ def plot_curves(runs, arms: list[str], seeds: list[int], labels: dict[str, str],
         ax.set_xlabel(f"{name} added per task (after the shared round 0)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("average success rate (%)")
-    axes[-1].legend(fontsize=7)
+    axes[-1].legend(fontsize=7, loc="lower right")  # the curves rise to the upper left
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
