@@ -266,7 +266,8 @@ def predictability_lines(
     ]
 
 
-def plot_curves(runs, arms: list[str], seeds: list[int], labels: dict[str, str], path: Path) -> None:
+def plot_curves(runs, seeds: dict[str, list[int]], labels: dict[str, str], path: Path) -> None:
+    """Success against each cost measure, one curve per arm (mean and std over that arm's `seeds`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -274,9 +275,9 @@ def plot_curves(runs, arms: list[str], seeds: list[int], labels: dict[str, str],
 
     fig, axes = plt.subplots(1, len(MEASURES), figsize=(5.2 * len(MEASURES), 4), sharey=True)
     for ax, (measure, name) in zip(axes, MEASURES.items(), strict=True):
-        for arm in arms:
-            xs = np.array([runs[(arm, s)].added[measure] for s in seeds])
-            ys = 100 * np.array([runs[(arm, s)].average for s in seeds])
+        for arm, arm_seeds in seeds.items():
+            xs = np.array([runs[(arm, s)].added[measure] for s in arm_seeds])
+            ys = 100 * np.array([runs[(arm, s)].average for s in arm_seeds])
             ax.errorbar(
                 xs.mean(0), ys.mean(0), yerr=ys.std(0), marker="o", capsize=3, label=labels.get(arm, arm)
             )
@@ -305,7 +306,10 @@ def write_report(
     if "uniform" not in seeds_of:
         raise SystemExit(f"no Uniform summary in {folder}: nothing to compare with")
     arms = [a for a in labels if a in seeds_of] + sorted(set(seeds_of) - set(labels))
-    common = sorted(set.intersection(*(set(seeds_of[a]) for a in arms)))
+    # Each arm over the seeds it shares with Uniform (so its curve and Uniform's have the same round 0s),
+    # Uniform over all of its own.
+    curve_seeds = {a: [s for s in seeds_of[a] if s in seeds_of["uniform"]] for a in arms}
+    curve_seeds = {a: ss for a, ss in curve_seeds.items() if ss}
     tasks = next(iter(runs.values())).tasks
     rounds = next(iter(runs.values())).success.shape[1]
     lines = [f"# {title}", "", *header, ""]
@@ -314,24 +318,23 @@ def write_report(
         + "; ".join(f"{labels.get(a, a)} {', '.join(map(str, seeds_of[a]))}" for a in arms)
         + ".",
         "",
-        f"## Curves (seeds {', '.join(map(str, common)) or 'none'}: every arm finished them)",
+        "## Curves (each arm over the seeds it and Uniform both finished; Uniform over all of its own)",
         "",
         "Average success on the same 50 fixed initial states per task, mean ± std over seeds; in brackets what the "
         "expansion rounds added per task: demonstrations / expert frames.",
         "",
     ]
-    if common:
-        rows = []
-        for arm in arms:
-            cells = []
-            for r in range(rounds):
-                ys = [100 * runs[(arm, s)].average[r] for s in common]
-                demos = np.mean([runs[(arm, s)].added["demos"][r] for s in common])
-                frames = np.mean([runs[(arm, s)].added["frames"][r] for s in common])
-                cells.append(f"{np.mean(ys):.1f} ± {np.std(ys):.1f} ({demos:.1f} / {frames:.0f})")
-            rows.append([labels.get(arm, arm), *cells])
-        lines += [table(["arm", *(f"round {r}" for r in range(rounds))], rows, aligned=False)]
-        plot_curves(runs, arms, common, labels, out.with_suffix(".png"))
+    rows = []
+    for arm, common in curve_seeds.items():
+        cells = []
+        for r in range(rounds):
+            ys = [100 * runs[(arm, s)].average[r] for s in common]
+            demos = np.mean([runs[(arm, s)].added["demos"][r] for s in common])
+            frames = np.mean([runs[(arm, s)].added["frames"][r] for s in common])
+            cells.append(f"{np.mean(ys):.1f} ± {np.std(ys):.1f} ({demos:.1f} / {frames:.0f})")
+        rows.append([labels.get(arm, arm), ", ".join(map(str, common)), *cells])
+    lines += [table(["arm", "seeds", *(f"round {r}" for r in range(rounds))], rows, aligned=False)]
+    plot_curves(runs, curve_seeds, labels, out.with_suffix(".png"))
     comparisons = {}
     for arm in arms:
         seeds = [s for s in seeds_of[arm] if s in seeds_of["uniform"]]
@@ -414,11 +417,10 @@ def write_report(
         *predictability_lines(runs, arms, seeds_of, tasks, labels),
     ]
     lines += ["", "## Goals", ""] + goal_lines(comparisons, takeover_arms, labels)
-    if common:
-        lines += [
-            "",
-            f"![success against demonstrations, expert frames and episodes]({out.with_suffix('.png').name})",
-        ]
+    lines += [
+        "",
+        f"![success against demonstrations, expert frames and episodes]({out.with_suffix('.png').name})",
+    ]
     reading = out.read_text().partition("\n## Reading")[2] if out.exists() else ""
     text = "\n".join(lines) + "\n" + (f"\n## Reading{reading}" if reading else "")
     out.write_text(text)
