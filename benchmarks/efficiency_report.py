@@ -284,8 +284,10 @@ def plot_curves(runs, seeds: dict[str, list[int]], labels: dict[str, str], path:
         ax.set_xlabel(f"{name} added per task (after the shared round 0)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("average success rate (%)")
-    axes[-1].legend(fontsize=7, loc="lower right")  # the curves rise to the upper left
-    fig.tight_layout()
+    # Below the panels: inside one, the long arm names hide the first rounds' points.
+    handles, names = axes[-1].get_legend_handles_labels()
+    fig.legend(handles, names, fontsize=8, loc="lower center", ncol=2, frameon=False)
+    fig.tight_layout(rect=(0, 0.04 + 0.035 * ((len(names) + 1) // 2), 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
@@ -464,7 +466,7 @@ def goal_lines(
         pairs = [(r, theirs[s]) for s, r in zip(c.seeds, c.ratio["demos"], strict=True) if s in theirs]
         fewer = sum(r is not None and (t is None or r < t) for r, t in pairs)
         shown = "; ".join(
-            f"{'-' if r is None else f'{r:.2f}x'} vs {'not reached' if t is None else f'{t:.2f}x'}"
+            f"{'-' if r is None else f'{r:.3f}x'} vs {'not reached' if t is None else f'{t:.3f}x'}"
             for r, t in pairs
         )
         verdict = "met" if pairs and fewer == len(pairs) else "missed"
