@@ -183,17 +183,41 @@ def correction_lines(
         steps = [e["start_step"] for s in seeds for e in runs[(arm, s)].episodes if e["task"] == t]
         rows.append(
             f"| {t} | {failed}/{tried} ({100 * failed / max(1, tried):.0f} %) | "
-            f"{f'{np.mean(steps):.0f}' if steps else '-'} | {frames:.0f} | {uniform_frames:.0f} | {lost} |"
+            f"{f'{np.mean(steps):.0f}' if steps else '-'} | {frames:.0f} | {uniform_frames:.0f} | {lost} | "
+            f"{fmt_task_ratio([task_frames_ratio(runs[(arm, s)], runs[('uniform', s)], t) for s in seeds])} |"
         )
     everything = [row for s in seeds for row in runs[(arm, s)].ledger]
     uniform_all = [row for s in seeds for row in runs[("uniform", s)].ledger]
     return [
         "| task | expert failed from the takeover state | mean takeover step | frames per correction "
-        "| Uniform's expert frames per demo | expert frames in failed attempts: this arm / Uniform |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| Uniform's expert frames per demo | expert frames in failed attempts: this arm / Uniform "
+        "| reaches Uniform's final on this task with: expert frames (seeds) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
         *rows,
-        f"| all | | | | | {wasted_share(everything):.0f} % / {wasted_share(uniform_all):.0f} % |",
+        f"| all | | | | | {wasted_share(everything):.0f} % / {wasted_share(uniform_all):.0f} % | |",
     ]
+
+
+def task_frames_ratio(mine: Run, uniform: Run, task: str) -> float | None:
+    """On one task: the expert frames the arm spent to reach Uniform's final success there, over Uniform's."""
+
+    def frames(run: Run) -> np.ndarray:  # cumulative expert frames added to the task after round 0..R
+        first = min(row["round"] for row in run.ledger)
+        per_round = np.zeros(run.success.shape[1])
+        for row in run.ledger:
+            if row["task"] == task:
+                per_round[row["round"] - first + 1] += row["collection_env_steps"]
+        return np.cumsum(per_round)
+
+    i = mine.tasks.index(task)
+    reached = cost_to_reach(frames(mine), mine.success[i], uniform.success[i][-1])
+    return None if reached is None else reached / max(1.0, frames(uniform)[-1])
+
+
+def fmt_task_ratio(values: list[float | None]) -> str:
+    reached = [v for v in values if v is not None]
+    mean = f"{np.mean(reached):.2f}x" if reached else "never"
+    return f"{mean} ({len(reached)}/{len(values)} reached)"
 
 
 def wasted_share(ledger: list[dict]) -> float:

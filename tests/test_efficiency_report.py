@@ -1,0 +1,84 @@
+"""The benchmark report's arithmetic (benchmarks/efficiency_report.py) on small hand-computed curves: the costs
+read off interpolated curves, the paired differences and the goal verdicts the results files print."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SPEC = importlib.util.spec_from_file_location(
+    "efficiency_report", Path(__file__).parents[1] / "benchmarks" / "efficiency_report.py"
+)
+report = importlib.util.module_from_spec(SPEC)
+sys.modules[SPEC.name] = report  # its dataclasses resolve their annotations there
+SPEC.loader.exec_module(report)
+
+TASKS = ["a", "b"]
+
+
+def summary(
+    arm: str, seed: int, success: list[float], frames_per_round: int, demos_per_round: int = 2
+) -> dict:
+    """A finished arm on two tasks with the same curve: `success` for rounds 0-3 and, per task and expansion round,
+    `demos_per_round` demonstrations that cost `frames_per_round` expert frames."""
+    ledger = [
+        {
+            "round": r,
+            "task": t,
+            "demos_added": demos_per_round,
+            "collection_env_steps": frames_per_round,
+            "eval_episodes": 10,
+        }
+        for r in (1, 2, 3)
+        for t in TASKS
+    ]
+    return {
+        "arm": arm,
+        "seed": seed,
+        "tasks": TASKS,
+        "success": dict.fromkeys(TASKS, success),
+        "ledger": ledger,
+    }
+
+
+def runs(arm_frames: int) -> dict:
+    out = {}
+    for seed in range(5):
+        out[("uniform", seed)] = report.load_run(summary("uniform", seed, [0.5, 0.6, 0.7, 0.8], 200))
+        out[("takeover", seed)] = report.load_run(summary("takeover", seed, [0.5, 0.7, 0.8, 0.9], arm_frames))
+    return out
+
+
+def test_cost_to_reach_interpolates_between_rounds_and_says_never():
+    x, y = np.array([0.0, 4.0, 10.0]), np.array([0.5, 0.6, 0.8])
+    assert report.cost_to_reach(x, y, 0.7) == pytest.approx(7.0)
+    assert report.cost_to_reach(x, y, 0.4) == 0.0
+    assert report.cost_to_reach(x, y, 0.9) is None
+
+
+def test_compare_reads_ratios_and_equal_frames_difference():
+    c = report.compare(runs(arm_frames=50), "takeover", list(range(5)))
+    # Uniform's final 0.8 is reached at round 2: 100 of Uniform's 600 frames per task, 4 of its 6 demos.
+    assert c.ratio["frames"] == pytest.approx([1 / 6] * 5)
+    assert c.ratio["demos"] == pytest.approx([2 / 3] * 5)
+    assert c.final_diff == pytest.approx([10.0] * 5)
+    # At 150 frames (the arm's final): 0.9 against Uniform's 0.5 + 0.1 * 150 / 200.
+    assert c.frames_diff == pytest.approx([32.5] * 5)
+
+
+@pytest.mark.parametrize(("arm_frames", "verdict"), [(50, "met."), (150, "missed (0.50x, goal 0.33x).")])
+def test_goal_lines_judge_the_expert_frames_goal(arm_frames, verdict):
+    comparisons = {"takeover": report.compare(runs(arm_frames), "takeover", list(range(5)))}
+    lines = report.goal_lines(comparisons, {"takeover"}, {})
+    frames_goal = next(line for line in lines if "1/3 of Uniform's added expert frames" in line)
+    assert frames_goal.endswith(verdict)
+
+
+def test_per_task_frames_ratio():
+    r = runs(arm_frames=150)
+    assert report.task_frames_ratio(r[("takeover", 0)], r[("uniform", 0)], "b") == pytest.approx(300 / 600)
+    never = report.load_run(summary("takeover", 0, [0.5, 0.55, 0.6, 0.7], 50))
+    assert report.task_frames_ratio(never, r[("uniform", 0)], "a") is None
+    assert report.fmt_task_ratio([0.5, None]) == "0.50x (1/2 reached)"
