@@ -282,6 +282,7 @@ def export_run(out: Path, seed: int, arm: str) -> Path:
         "arm": arm,
         "seed": seed,
         "flags": [*ALL_ARMS[arm], *seed_flags(seed)],
+        "recipe": str(RECIPE.relative_to(ROOT)),
         "machine": machine_line(),
         "settings": {k: v for k, v in settings.items() if not isinstance(v, str) or not v.startswith("/")},
         "tasks": run.tasks,
@@ -337,20 +338,18 @@ def phase_report(seeds: list[int], arms: list[str]) -> None:
     """benchmarks/results/<summaries>.md (and .png) from the committed summaries of `--summaries`."""
     from efficiency_report import write_report
 
-    machines = sorted(
-        {
-            json.loads(p.read_text())["machine"].split("; machine: ")[-1]
-            for p in SUMMARIES.glob("seed*-*.json")
-        }
-    )
-    tasks = json.loads(next(SUMMARIES.glob("seed*-*.json")).read_text())["tasks"]
+    summaries = [json.loads(p.read_text()) for p in SUMMARIES.glob("seed*-*.json")]
+    machines = sorted({s["machine"].split("; machine: ")[-1] for s in summaries})
+    tasks = summaries[0]["tasks"]
+    # The recipe each run was exported with (summaries from before it was recorded: this command's --recipe).
+    recipes = sorted({s.get("recipe", str(RECIPE.relative_to(ROOT))) for s in summaries})
     header = [
         f"Command: `python benchmarks/data_efficiency.py arms --seeds S.. --arms A.. --summaries {SUMMARIES.name}` "
         f"(two drivers, `--torch_threads 1`), then `report --summaries {SUMMARIES.name}`; report "
         f"{machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary under "
         f"`results/{SUMMARIES.name}/`). Runs of one machine only: trained policies differ across CPUs, so seeds "
         "are paired only within a folder.",
-        f"Recipe `{RECIPE.relative_to(ROOT)}` (tasks {', '.join(tasks)}): per seed every arm branches from one shared "
+        f"Recipe {', '.join(f'`{r}`' for r in recipes)} (tasks {', '.join(tasks)}): per seed every arm branches from one shared "
         "round 0 (dataset, policy, evaluation), trains each round from scratch with the same training seed, and is "
         "evaluated on the same fixed initial states; arms differ only in the flags of the script's `ALL_ARMS`.",
     ]
@@ -369,6 +368,7 @@ def phase_report(seeds: list[int], arms: list[str]) -> None:
 TITLES = {
     "data_efficiency": "Data efficiency on MetaWorld: Uniform, AdaDemo, AdaDemo + tempered sampler, budgeted",
     "corrections": "Corrections from the point of failure on MetaWorld: takeover arms against Uniform and budgeted",
+    "mt10": "Data efficiency on MetaWorld MT10: Uniform, AdaDemo, budgeted, budgeted + takeover corrections",
 }
 TAKEOVER_ARMS = {
     "budgeted_takeover",

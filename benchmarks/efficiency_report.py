@@ -118,6 +118,7 @@ class Comparison:
     arm: str
     seeds: list[int]
     final_diff: np.ndarray  # per seed, points, after round 3
+    demos_diff: np.ndarray  # per seed, points, at equal demonstrations
     frames_diff: np.ndarray  # per seed, points, at equal expert frames
     frames_level: np.ndarray  # per seed, the expert frames per task compared at
     ratio: dict[
@@ -125,24 +126,31 @@ class Comparison:
     ]  # measure -> per seed, cost to reach Uniform's final / Uniform's cost
 
 
+def diff_at_equal(mine: Run, uniform: Run, measure: str) -> tuple[float, float]:
+    """Points of average success over Uniform with both curves read at the same cost (the smaller of the two
+    final costs in `measure`), and that cost."""
+    level = min(mine.added[measure][-1], uniform.added[measure][-1])
+    return 100 * (
+        value_at(mine.added[measure], mine.average, level)
+        - value_at(uniform.added[measure], uniform.average, level)
+    ), level
+
+
 def compare(runs: dict[tuple[str, int], Run], arm: str, seeds: list[int]) -> Comparison:
-    final, frames_diff, levels, ratio = [], [], [], {m: [] for m in MEASURES}
+    final, demos_diff, frames_diff, levels, ratio = [], [], [], [], {m: [] for m in MEASURES}
     for s in seeds:
         mine, uniform = runs[(arm, s)], runs[("uniform", s)]
         final.append(100 * (mine.average[-1] - uniform.average[-1]))
-        level = min(mine.added["frames"][-1], uniform.added["frames"][-1])
+        demos_diff.append(diff_at_equal(mine, uniform, "demos")[0])
+        diff, level = diff_at_equal(mine, uniform, "frames")
+        frames_diff.append(diff)
         levels.append(level)
-        frames_diff.append(
-            100
-            * (
-                value_at(mine.added["frames"], mine.average, level)
-                - value_at(uniform.added["frames"], uniform.average, level)
-            )
-        )
         for m in MEASURES:
             reached = cost_to_reach(mine.added[m], mine.average, uniform.average[-1])
             ratio[m].append(None if reached is None else reached / uniform.added[m][-1])
-    return Comparison(arm, seeds, np.array(final), np.array(frames_diff), np.array(levels), ratio)
+    return Comparison(
+        arm, seeds, np.array(final), np.array(demos_diff), np.array(frames_diff), np.array(levels), ratio
+    )
 
 
 def fmt_diff(values: np.ndarray) -> str:
@@ -239,10 +247,10 @@ def predictability_lines(
     seeds_of: dict[str, list[int]],
     tasks: list[str],
     labels: dict[str, str],
-) -> list[str]:
+) -> tuple[list[str], dict[str, float]]:
     """Does failure predictability from the initial state tell where adaptive collection gains? Per task the AUC
     (mean over every exported run's estimate) beside each arm's paired gain over Uniform after round 3, and the
-    rank correlation over tasks."""
+    rank correlation over tasks (also returned, per arm)."""
     aucs = {
         t: [
             r.predictability[t]["auc"]
@@ -252,7 +260,7 @@ def predictability_lines(
         for t in tasks
     }
     if not any(aucs.values()):
-        return ["No summary has failure predictability yet (re-export with `data_efficiency.py export`)."]
+        return ["No summary has failure predictability yet (re-export with `data_efficiency.py export`)."], {}
     mean_auc = np.array([np.mean(aucs[t]) if aucs[t] else np.nan for t in tasks])
     gains = {}
     for arm in arms:
@@ -276,18 +284,16 @@ def predictability_lines(
         for i, t in enumerate(tasks)
     ]
     known = ~np.isnan(mean_auc)
-    rho = [
-        f"{labels.get(arm, arm)} {spearman(mean_auc[known], g[known]):+.2f}"
-        for arm, g in gains.items()
-        if known.sum() >= 3
-    ]
+    rho = {arm: spearman(mean_auc[known], g[known]) for arm, g in gains.items() if known.sum() >= 3}
     return [
         "| task | AUC (estimates) | " + " | ".join(f"{labels.get(a, a)}: gain" for a in gains) + " |",
         "| --- | --- | " + " | ".join("---" for _ in gains) + " |",
         *rows,
         "",
-        f"Spearman rank correlation of AUC and gain over {int(known.sum())} tasks: " + "; ".join(rho) + ".",
-    ]
+        f"Spearman rank correlation of AUC and gain over {int(known.sum())} tasks: "
+        + "; ".join(f"{labels.get(arm, arm)} {r:+.2f}" for arm, r in rho.items())
+        + ".",
+    ], rho
 
 
 def plot_curves(runs, seeds: dict[str, list[int]], labels: dict[str, str], path: Path) -> None:
@@ -370,8 +376,9 @@ def write_report(
         "",
         "## Against Uniform, paired by seed",
         "",
-        "Differences in points of average success (mean over seeds [95 % t-interval]); 'equal frames': both curves "
-        "read at the smaller of the two arms' final expert frames per task; 'reaches Uniform's final average with': "
+        "Differences in points of average success (mean over seeds [95 % t-interval]); 'equal demonstrations' and "
+        "'equal expert frames': both curves read at the smaller of the two arms' final cost per task (after "
+        "round 3 is at equal demonstrations for arms that add the same number); 'reaches Uniform's final average with': "
         "the arm's cost there over Uniform's final cost (mean [95 % bootstrap interval over seeds]).",
         "",
     ]
@@ -382,6 +389,7 @@ def write_report(
                 labels.get(arm, arm),
                 len(c.seeds),
                 fmt_diff(c.final_diff),
+                fmt_diff(c.demos_diff),
                 f"{fmt_diff(c.frames_diff)} @ {c.frames_level.mean():.0f}",
                 *(fmt_ratio(c.ratio[m]) for m in MEASURES),
             ]
@@ -392,6 +400,7 @@ def write_report(
                 "arm",
                 "seeds",
                 "after round 3",
+                "at equal demonstrations",
                 "at equal expert frames",
                 *(f"reaches Uniform's with: {n}" for n in MEASURES.values()),
             ],
@@ -440,9 +449,14 @@ def write_report(
         "AUC, `adademo_lerobot/failure_map.py`, mean over the runs' estimates, each over every state its policies "
         "were evaluated on) and each arm's paired gain over Uniform after round 3, in points.",
         "",
-        *predictability_lines(runs, arms, seeds_of, tasks, labels),
     ]
-    lines += ["", "## Goals", ""] + goal_lines(comparisons, takeover_arms, labels)
+    predictability, correlations = predictability_lines(runs, arms, seeds_of, tasks, labels)
+    lines += predictability
+    lines += ["", "## Goals", "", "Data efficiency:", ""] + efficiency_goal_lines(
+        comparisons, labels, correlations
+    )
+    if any(a in takeover_arms for a in comparisons):
+        lines += ["", "Corrections (takeover arms):", ""] + goal_lines(comparisons, takeover_arms, labels)
     lines += [
         "",
         f"![success against demonstrations, expert frames and episodes]({out.with_suffix('.png').name})",
@@ -451,6 +465,46 @@ def write_report(
     text = "\n".join(lines) + "\n" + (f"\n## Reading{reading}" if reading else "")
     out.write_text(text)
     return text
+
+
+def efficiency_goal_lines(
+    comparisons: dict[str, Comparison], labels: dict[str, str], correlations: dict[str, float]
+) -> list[str]:
+    """The data-efficiency goals, computed for the best arm (most seeds, then the best difference at equal
+    demonstrations): Uniform's final average with <= 1/3 of Uniform's added demonstrations; >= Uniform + 5 points
+    at equal demonstrations after 3 rounds with a 95 % interval above 0 (>= 5 seeds); and whether failure
+    predictability points the same way as the per-task gains."""
+    if not comparisons:
+        return ["No arm has finished a seed beside Uniform yet."]
+    most = max(len(c.seeds) for c in comparisons.values())
+    arm = max(
+        (a for a, c in comparisons.items() if len(c.seeds) == most),
+        key=lambda a: comparisons[a].demos_diff.mean(),
+    )
+    c = comparisons[arm]
+    lines = [f"Best arm: {labels.get(arm, arm)} ({len(c.seeds)} seeds)."]
+    reached = [v for v in c.ratio["demos"] if v is not None]
+    ratio = fmt_ratio(c.ratio["demos"])
+    verdict = "met" if reached and len(reached) == len(c.seeds) and np.mean(reached) <= 1 / 3 else "missed"
+    lines.append(
+        f"- Uniform's final average with <= 1/3 of Uniform's added demonstrations: {verdict} ({ratio})."
+    )
+    mean, half = t_interval(c.demos_diff)
+    short = [] if len(c.seeds) >= 5 else [f"{len(c.seeds)} of 5 seeds"]
+    short += [] if mean >= 5 else [f"{mean:+.1f} points, {5 - mean:.1f} short"]
+    short += [] if not np.isnan(half) and mean - half > 0 else ["the interval includes 0"]
+    lines.append(
+        "- At equal demonstrations >= Uniform + 5 points after 3 rounds, 95 % interval above 0: "
+        + (f"missed ({'; '.join(short)})" if short else "met")
+        + f": {fmt_diff(c.demos_diff)}."
+    )
+    if arm in correlations:
+        r = correlations[arm]
+        lines.append(
+            f"- Failure predictability and per-task gain, rank correlation: {r:+.2f} "
+            + ("(the direction the reading predicts)." if r > 0 else "(against the reading's direction).")
+        )
+    return lines
 
 
 def goal_lines(

@@ -82,3 +82,29 @@ def test_per_task_frames_ratio():
     never = report.load_run(summary("takeover", 0, [0.5, 0.55, 0.6, 0.7], 50))
     assert report.task_frames_ratio(never, r[("uniform", 0)], "a") is None
     assert report.fmt_task_ratio([0.5, None]) == "0.50x (1/2 reached)"
+
+
+def test_equal_demonstrations_reads_an_arm_that_added_fewer_at_its_own_final():
+    r = runs(arm_frames=50)
+    fewer = report.load_run(summary("takeover", 0, [0.5, 0.7, 0.8, 0.9], 50, demos_per_round=1))
+    c = report.compare({**r, ("takeover", 0): fewer}, "takeover", [0])
+    # 3 demos per task: 0.9 against Uniform's 0.5 + 0.1 * 3 / 2 (its curve at 3 of its 6 demos).
+    assert c.demos_diff == pytest.approx([25.0])
+    assert c.final_diff == pytest.approx([10.0])
+
+
+@pytest.mark.parametrize(
+    ("arm_frames", "demos_per_round", "demos_verdict"),
+    [(50, 2, "missed (0.67x [0.67, 0.67])."), (50, 1, "met (0.33x [0.33, 0.33]).")],
+)
+def test_efficiency_goal_lines(arm_frames, demos_per_round, demos_verdict):
+    r = runs(arm_frames)
+    for seed in range(5):
+        r[("takeover", seed)] = report.load_run(
+            summary("takeover", seed, [0.5, 0.7, 0.8, 0.9], arm_frames, demos_per_round)
+        )
+    comparisons = {"takeover": report.compare(r, "takeover", list(range(5)))}
+    lines = report.efficiency_goal_lines(comparisons, {}, {"takeover": -0.4})
+    assert lines[1].endswith(demos_verdict)
+    assert lines[2].startswith("- At equal demonstrations") and ": met: " in lines[2]
+    assert "against the reading's direction" in lines[3]
