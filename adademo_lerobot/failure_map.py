@@ -10,7 +10,8 @@ chance, 1 is perfect. Its 95 % interval comes from resampling the states.
 
 The reading: AUC >= 0.7 with an interval above 0.5: "failures concentrate in a region of initial states: demos at
 failed states should help"; an interval that includes 0.5: "failures look independent of the start: expect little
-over Uniform"; in between: "some concentration". Fewer than 5 failures or successes: "too few outcomes to tell".
+over Uniform"; in between: "some concentration". Fewer than 5 failures in at most 5 % of the states: "(almost)
+never fails"; otherwise fewer than 5 failures or successes: "too few outcomes to tell".
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ class Predictability:
 
     @property
     def reading(self) -> str:
+        if self.auc is None and self.failures < MIN_EACH and self.failures <= 0.05 * self.states:
+            return "(almost) never fails: little for AdaDemo to collect here"
         if self.auc is None:
             return "too few outcomes to tell"
         if self.low > 0.5 and self.auc >= 0.7:

@@ -22,3 +22,7 @@ def test_failures_in_one_region_are_predictable_and_random_ones_are_not():
     assert coin.reading.startswith("failures look independent")
     few = predictability("t", [(states[:20], np.arange(20) < 2)])  # 2 failures
     assert few.auc is None and few.reading == "too few outcomes to tell"
+    solved = predictability("t", [(states[:50], np.arange(50) < 1)])  # 1 failure in 50: already solved
+    assert solved.auc is None and solved.reading.startswith("(almost) never fails")
+    always = predictability("t", [(states[:50], np.arange(50) < 48)])  # 2 successes: no reading either way
+    assert always.reading == "too few outcomes to tell"
