@@ -45,17 +45,29 @@ class Run:
         return self.success.mean(axis=0)
 
 
+def cumulative_added(ledger: list[dict], rounds: int, cost, task: str | None = None) -> np.ndarray:
+    """`cost(row)` summed over the ledger's rows (of `task`, or all) per round, cumulated: the total added after
+    round 0..rounds-1 (the ledger's first expansion round is round 1)."""
+    first = min(row["round"] for row in ledger)
+    per_round = np.zeros(rounds)
+    for row in ledger:
+        if task is None or row["task"] == task:
+            per_round[row["round"] - first + 1] += cost(row)
+    return np.cumsum(per_round)
+
+
+COSTS = {  # measure -> what a ledger row (one task, one round) spent in it
+    "demos": lambda row: row["demos_added"],
+    "frames": lambda row: row["collection_env_steps"],
+    "episodes": lambda row: row["demos_added"] + row.get("eval_episodes_run", row["eval_episodes"]),
+}
+
+
 def load_run(summary: dict) -> Run:
     tasks = summary["tasks"]
     success = np.array([summary["success"][t] for t in tasks], dtype=float)
     rounds = success.shape[1]
-    per_round = {m: np.zeros(rounds) for m in MEASURES}
-    for row in summary["ledger"]:
-        r = row["round"] - min(x["round"] for x in summary["ledger"]) + 1
-        per_round["demos"][r] += row["demos_added"]
-        per_round["frames"][r] += row["collection_env_steps"]
-        per_round["episodes"][r] += row["demos_added"] + row.get("eval_episodes_run", row["eval_episodes"])
-    added = {m: np.cumsum(v) / len(tasks) for m, v in per_round.items()}
+    added = {m: cumulative_added(summary["ledger"], rounds, COSTS[m]) / len(tasks) for m in MEASURES}
     return Run(
         summary["arm"],
         summary["seed"],
@@ -209,13 +221,8 @@ def correction_lines(
 def task_frames_ratio(mine: Run, uniform: Run, task: str) -> float | None:
     """On one task: the expert frames the arm spent to reach Uniform's final success there, over Uniform's."""
 
-    def frames(run: Run) -> np.ndarray:  # cumulative expert frames added to the task after round 0..R
-        first = min(row["round"] for row in run.ledger)
-        per_round = np.zeros(run.success.shape[1])
-        for row in run.ledger:
-            if row["task"] == task:
-                per_round[row["round"] - first + 1] += row["collection_env_steps"]
-        return np.cumsum(per_round)
+    def frames(run: Run) -> np.ndarray:
+        return cumulative_added(run.ledger, run.success.shape[1], COSTS["frames"], task)
 
     i = mine.tasks.index(task)
     reached = cost_to_reach(frames(mine), mine.success[i], uniform.success[i][-1])
@@ -467,6 +474,26 @@ def write_report(
     return text
 
 
+def best_arm(comparisons: dict[str, Comparison], arms: list[str], key) -> str:
+    """Of `arms`, those with the most seeds, then the highest `key(arm)`."""
+    most = max(len(comparisons[a].seeds) for a in arms)
+    return max((a for a in arms if len(comparisons[a].seeds) == most), key=key)
+
+
+def five_points_line(measure: str, diffs: np.ndarray) -> str:
+    """The goal '>= Uniform + 5 points after 3 rounds at equal `measure`, 95 % interval above 0, >= 5 seeds'."""
+    mean, half = t_interval(diffs)
+    ok = len(diffs) >= 5 and mean >= 5 and mean - half > 0
+    short = [] if len(diffs) >= 5 else [f"{len(diffs)} of 5 seeds"]
+    short += [] if mean >= 5 else [f"{mean:+.1f} points, {5 - mean:.1f} short"]
+    short += [] if np.isnan(half) or mean - half > 0 else ["the interval includes 0"]
+    return (
+        f"- At equal {measure} >= Uniform + 5 points after 3 rounds, 95 % interval above 0: "
+        + ("met" if ok else f"missed ({'; '.join(short)})")
+        + f": {fmt_diff(diffs)}."
+    )
+
+
 def efficiency_goal_lines(
     comparisons: dict[str, Comparison], labels: dict[str, str], correlations: dict[str, float]
 ) -> list[str]:
@@ -476,11 +503,7 @@ def efficiency_goal_lines(
     predictability points the same way as the per-task gains."""
     if not comparisons:
         return ["No arm has finished a seed beside Uniform yet."]
-    most = max(len(c.seeds) for c in comparisons.values())
-    arm = max(
-        (a for a, c in comparisons.items() if len(c.seeds) == most),
-        key=lambda a: comparisons[a].demos_diff.mean(),
-    )
+    arm = best_arm(comparisons, list(comparisons), lambda a: comparisons[a].demos_diff.mean())
     c = comparisons[arm]
     lines = [f"Best arm: {labels.get(arm, arm)} ({len(c.seeds)} seeds)."]
     reached = [v for v in c.ratio["demos"] if v is not None]
@@ -489,15 +512,7 @@ def efficiency_goal_lines(
     lines.append(
         f"- Uniform's final average with <= 1/3 of Uniform's added demonstrations: {verdict} ({ratio})."
     )
-    mean, half = t_interval(c.demos_diff)
-    short = [] if len(c.seeds) >= 5 else [f"{len(c.seeds)} of 5 seeds"]
-    short += [] if mean >= 5 else [f"{mean:+.1f} points, {5 - mean:.1f} short"]
-    short += [] if not np.isnan(half) and mean - half > 0 else ["the interval includes 0"]
-    lines.append(
-        "- At equal demonstrations >= Uniform + 5 points after 3 rounds, 95 % interval above 0: "
-        + (f"missed ({'; '.join(short)})" if short else "met")
-        + f": {fmt_diff(c.demos_diff)}."
-    )
+    lines.append(five_points_line("demonstrations", c.demos_diff))
     if arm in correlations:
         r = correlations[arm]
         lines.append(
@@ -516,15 +531,9 @@ def goal_lines(
     initial = [a for a in comparisons if a not in takeover_arms]
     if not takeover:
         return ["No takeover arm has finished a seed yet."]
-
-    def best(arms: list[str], key) -> str:
-        most = max(len(comparisons[a].seeds) for a in arms)
-        return max((a for a in arms if len(comparisons[a].seeds) == most), key=key)
-
-    arm = best(takeover, lambda a: comparisons[a].frames_diff.mean())
+    arm = best_arm(comparisons, takeover, lambda a: comparisons[a].frames_diff.mean())
     c = comparisons[arm]
     frames = [v for v in c.ratio["frames"] if v is not None]
-    mean, half = t_interval(c.frames_diff)
     lines = [f"Best takeover arm: {labels.get(arm, arm)} ({len(c.seeds)} seeds)."]
     if frames:
         ratio = np.mean(frames)
@@ -537,7 +546,7 @@ def goal_lines(
             "- Uniform's final average with <= 1/3 of Uniform's added expert frames: missed (never reached)."
         )
     if initial:
-        rival = best(initial, lambda a: comparisons[a].final_diff.mean())
+        rival = best_arm(comparisons, initial, lambda a: comparisons[a].final_diff.mean())
         # Per seed both ran: fewer demos to reach Uniform's final average (an arm that never reached it within
         # its rounds needed more than it added, so the other one, if it reached it, needed fewer).
         theirs = dict(zip(comparisons[rival].seeds, comparisons[rival].ratio["demos"], strict=True))
@@ -552,13 +561,5 @@ def goal_lines(
             f"- ... with fewer demonstrations than the best initial-state arm ({labels.get(rival, rival)}): "
             f"{verdict} on {fewer} of the {len(pairs)} seeds both ran (of Uniform's added demos, per seed: {shown})."
         )
-    ok = len(c.seeds) >= 5 and mean >= 5 and mean - half > 0
-    short = [] if len(c.seeds) >= 5 else [f"{len(c.seeds)} of 5 seeds"]
-    short += [] if mean >= 5 else [f"{mean:+.1f} points, {5 - mean:.1f} short"]
-    short += [] if np.isnan(half) or mean - half > 0 else ["the interval includes 0"]
-    lines.append(
-        "- At equal expert frames >= Uniform + 5 points after 3 rounds, 95 % interval above 0: "
-        + ("met" if ok else f"missed ({'; '.join(short)})")
-        + f": {fmt_diff(c.frames_diff)}."
-    )
+    lines.append(five_points_line("expert frames", c.frames_diff))
     return lines
