@@ -16,6 +16,7 @@ same for every round and every strategy and is never used for expansion.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import json
@@ -197,24 +198,40 @@ class RunState:
                     "rerun with the same recipe and flags, or use another --run_dir"
                 )
             self.done = state["done"]
+            self.interrupted = state.get("interrupted", {})
             settings = {**state["settings"], **settings}
         else:
             self.done = {}
+            self.interrupted = {}
         self.settings = settings
         self._save()
 
     def _save(self) -> None:
-        atomic_write_text(self.path, json.dumps({"settings": self.settings, "done": self.done}, indent=2))
+        state = {"settings": self.settings, "done": self.done}
+        if self.interrupted:
+            state["interrupted"] = self.interrupted
+        atomic_write_text(self.path, json.dumps(state, indent=2))
 
     def stage(self, name: str, fn, *args):
-        """`fn(*args)`, unless an earlier invocation finished the stage: then its remembered (JSON) result."""
+        """`fn(*args)`, unless an earlier invocation finished the stage: then its remembered (JSON) result.
+
+        A stage's `seconds` add up every invocation that worked on it, so a resumed stage reports its whole
+        cost; time lost to a kill that gave no chance to record it (SIGKILL, power) is not counted."""
         if name in self.done:
             print(f"[done] {name}")
             return self.done[name]["result"]
         print(f"[run]  {name}")
         start = time.perf_counter()
-        result = fn(*args)
-        self.done[name] = {"result": result, "seconds": round(time.perf_counter() - start, 1)}
+        earlier = self.interrupted.get(name, 0.0)
+        try:
+            result = fn(*args)
+        except BaseException:
+            self.interrupted[name] = round(earlier + time.perf_counter() - start, 1)
+            with contextlib.suppress(OSError):  # a full disk must not hide the failure being reported
+                self._save()
+            raise
+        self.interrupted.pop(name, None)
+        self.done[name] = {"result": result, "seconds": round(earlier + time.perf_counter() - start, 1)}
         self._save()
         return result
 

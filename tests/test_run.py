@@ -204,3 +204,26 @@ def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_ty
     )
     with pytest.raises(AdaDemoError, match="strategy"):
         RunState(tmp_path, {"strategy": {"type": "budgeted", "budget": [32, 48]}, **later})
+
+
+def test_a_resumed_stage_reports_the_seconds_of_every_invocation_that_worked_on_it(tmp_path):
+    from adademo_lerobot.run import RunState
+
+    settings = {
+        "strategy": {"type": "uniform"},
+        "lr_schedule": "preset",
+        "demo_start": "initial",
+        "takeover": None,
+    }
+
+    def interrupted():
+        time.sleep(0.3)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        RunState(tmp_path, settings).stage("train_0", interrupted)
+    resumed = RunState(tmp_path, settings)  # the next invocation of the same command
+    assert resumed.stage("train_0", lambda: time.sleep(0.2) or "checkpoint") == "checkpoint"
+    state = json.loads((tmp_path / "run_state.json").read_text())
+    assert state["done"]["train_0"]["seconds"] >= 0.45  # 0.3 s interrupted + 0.2 s resumed, not 0.2 s
+    assert "interrupted" not in state  # counted once: a later stage starts from zero
