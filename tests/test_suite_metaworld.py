@@ -161,3 +161,17 @@ def test_unknown_task_names_the_closest_valid_ones():
         make_suite(MetaWorldSuiteConfig(tasks=" , "))
     with pytest.raises(AdaDemoError, match="obs_type"):
         make_suite(MetaWorldSuiteConfig(tasks="reach-v3", obs_type="rgb"))
+
+
+def test_a_dataset_collected_with_a_task_group_accepts_the_same_group_on_the_command_line():
+    from adademo_lerobot.dataset.metadata import check_same_suite
+    from adademo_lerobot.suites.fetch import FetchSuiteConfig
+
+    stored = suite_config_from_dict(make_suite(MetaWorldSuiteConfig(tasks="mt10")).config.to_dict())
+    assert stored.tasks == ",".join(MT10)  # what a dataset's suite.json keeps
+    check_same_suite(stored, MetaWorldSuiteConfig(tasks="mt10"))  # `--suite.tasks=mt10` again: the same suite
+    check_same_suite(stored, MetaWorldSuiteConfig(tasks=",".join(MT10)))
+    with pytest.raises(AdaDemoError, match="another suite configuration"):
+        check_same_suite(stored, MetaWorldSuiteConfig(tasks="mt10,assembly-v3"))
+    fetch = suite_config_from_dict(make_suite(FetchSuiteConfig(tasks="push")).config.to_dict())
+    check_same_suite(fetch, FetchSuiteConfig(tasks="push"))  # short names too

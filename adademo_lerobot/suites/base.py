@@ -69,8 +69,10 @@ class SuiteConfig(draccus.ChoiceRegistry, abc.ABC):
         return {"type": self.type, **dataclasses.asdict(self)}
 
     def canonical(self) -> SuiteConfig:
-        """The config as a built suite stores it (defaults resolved), to compare a dataset's with flags."""
-        return self
+        """The config as a built suite stores it (task groups and short names resolved), to compare a dataset's
+        with flags: `--suite.tasks=mt10` is the dataset's ten task ids."""
+        tasks = self.suite_class().canonical_task_names(split_task_list(self.tasks))
+        return dataclasses.replace(self, tasks=",".join(tasks))
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
@@ -378,6 +380,11 @@ class SuiteBase:
     def sample_state(self, raw_env: Any, seed: int) -> np.ndarray:
         """Let the simulator draw its own initial state from `seed` and capture it."""
         raise NotImplementedError
+
+    @classmethod
+    def canonical_task_names(cls, tasks: list[str]) -> list[str]:
+        """The task ids that task names (and the family's group names) stand for, in one-hot order."""
+        return list(tasks)
 
     def _checked_config(self, config: SuiteConfig) -> SuiteConfig:
         """The config, checked; camera images need rendering that works on this machine."""

@@ -65,18 +65,6 @@ def all_task_names() -> list[str]:
     return list(ALL_V3_ENVIRONMENTS)
 
 
-def expand_task_groups(tasks: list[str]) -> list[str]:
-    out: list[str] = []
-    for task in tasks:
-        if task.lower() == "mt10":
-            out.extend(MT10)
-        elif task.lower() == "mt50":
-            out.extend(all_task_names())
-        else:
-            out.append(task)
-    return out
-
-
 def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera: str = "corner2"):
     """A bare MetaWorld env with the goal observable and no internal step limit (we truncate ourselves)."""
     from metaworld.env_dict import ALL_V3_ENVIRONMENTS
@@ -310,9 +298,22 @@ class MetaWorldSuite(SuiteBase):
 
     def __init__(self, config: MetaWorldSuiteConfig):
         config = self._checked_config(config)
-        tasks = expand_task_groups(split_task_list(config.tasks))
+        tasks = self.canonical_task_names(split_task_list(config.tasks))
         check_task_names(tasks, all_task_names(), "metaworld")
         self._set_tasks(config, tasks)
+
+    @classmethod
+    def canonical_task_names(cls, tasks: list[str]) -> list[str]:
+        """The groups `mt10` and `mt50` to their task ids; other names pass through (checked when built)."""
+        out: list[str] = []
+        for task in tasks:
+            if task.lower() == "mt10":
+                out.extend(MT10)
+            elif task.lower() == "mt50":
+                out.extend(all_task_names())
+            else:
+                out.append(task)
+        return out
 
     def make_sampler_env(self, task: str):
         return make_raw_env(task)
