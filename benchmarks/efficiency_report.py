@@ -257,7 +257,8 @@ def predictability_lines(
 ) -> tuple[list[str], dict[str, float]]:
     """Does failure predictability from the initial state tell where adaptive collection gains? Per task the AUC
     (mean over every exported run's estimate) beside each arm's paired gain over Uniform after round 3, and the
-    rank correlation over tasks (also returned, per arm)."""
+    rank correlation over tasks (also returned, per arm). For comparison, the same correlation for the round-0
+    failure rate (Uniform's seeds): the room a task leaves to gain, which the AUC does not measure."""
     aucs = {
         t: [
             r.predictability[t]["auc"]
@@ -282,23 +283,30 @@ def predictability_lines(
                     for i in range(len(tasks))
                 ]
             )
+    base = [runs[("uniform", s)].success[:, 0] for s in seeds_of.get("uniform", [])]
+    failures = 100 * (1 - np.mean(base, axis=0)) if base else np.full(len(tasks), np.nan)
     rows = [
-        f"| {t} | {mean_auc[i]:.2f} ({len(aucs[t])}) | "
+        f"| {t} | "
+        + (f"{mean_auc[i]:.2f} ({len(aucs[t])})" if aucs[t] else "-")
+        + f" | {failures[i]:.0f} | "
         + " | ".join(f"{g[i]:+.0f}" for g in gains.values())
         + " |"
-        if aucs[t]
-        else f"| {t} | - | " + " | ".join(f"{g[i]:+.0f}" for g in gains.values()) + " |"
         for i, t in enumerate(tasks)
     ]
     known = ~np.isnan(mean_auc)
     rho = {arm: spearman(mean_auc[known], g[known]) for arm, g in gains.items() if known.sum() >= 3}
+    rho_failures = {arm: spearman(failures[known], g[known]) for arm in rho for g in [gains[arm]]}
     return [
-        "| task | AUC (estimates) | " + " | ".join(f"{labels.get(a, a)}: gain" for a in gains) + " |",
-        "| --- | --- | " + " | ".join("---" for _ in gains) + " |",
+        "| task | AUC (estimates) | round-0 failures % | "
+        + " | ".join(f"{labels.get(a, a)}: gain" for a in gains)
+        + " |",
+        "| --- | --- | --- | " + " | ".join("---" for _ in gains) + " |",
         *rows,
         "",
         f"Spearman rank correlation of AUC and gain over {int(known.sum())} tasks: "
         + "; ".join(f"{labels.get(arm, arm)} {r:+.2f}" for arm, r in rho.items())
+        + ". Of the round-0 failure rate and gain, over the same tasks: "
+        + "; ".join(f"{labels.get(arm, arm)} {r:+.2f}" for arm, r in rho_failures.items())
         + ".",
     ], rho
 

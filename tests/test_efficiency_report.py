@@ -108,3 +108,31 @@ def test_efficiency_goal_lines(arm_frames, demos_per_round, demos_verdict):
     assert lines[1].endswith(demos_verdict)
     assert lines[2].startswith("- At equal demonstrations") and ": met: " in lines[2]
     assert "against the reading's direction" in lines[3]
+
+
+def test_predictability_table_ranks_auc_and_round0_failures_against_the_gains():
+    tasks = ["a", "b", "c"]
+    auc = {"a": 0.9, "b": 0.7, "c": 0.8}
+    base = {"a": 0.8, "b": 0.4, "c": 0.6}  # round-0 success: failures 20, 60, 40 %
+    gain = {"a": 0.02, "b": 0.10, "c": 0.05}  # the arm's round-3 gain grows with the failures, not the AUC
+
+    def run(arm: str, seed: int) -> "report.Run":
+        final = {t: base[t] + 0.1 + (gain[t] if arm == "budgeted" else 0) for t in tasks}
+        return report.load_run(
+            {
+                "arm": arm,
+                "seed": seed,
+                "tasks": tasks,
+                "success": {t: [base[t], base[t], base[t], final[t]] for t in tasks},
+                "ledger": summary(arm, seed, [0, 0, 0, 0], 0)["ledger"],  # costs play no part here
+                "predictability": {t: {"auc": auc[t]} for t in tasks},
+            }
+        )
+
+    runs = {(arm, s): run(arm, s) for arm in ("uniform", "budgeted") for s in (0, 1)}
+    lines, rho = report.predictability_lines(
+        runs, ["uniform", "budgeted"], {"uniform": [0, 1], "budgeted": [0, 1]}, tasks, {"budgeted": "B"}
+    )
+    assert lines[2] == "| a | 0.90 (4) | 20 | +2 |"
+    assert rho == {"budgeted": pytest.approx(-1.0)}  # AUC ranks a > c > b, gains b > c > a
+    assert lines[-1].endswith("Of the round-0 failure rate and gain, over the same tasks: B +1.00.")
