@@ -295,7 +295,7 @@ def predictability_lines(
     ]
     known = ~np.isnan(mean_auc)
     rho = {arm: spearman(mean_auc[known], g[known]) for arm, g in gains.items() if known.sum() >= 3}
-    rho_failures = {arm: spearman(failures[known], g[known]) for arm in rho for g in [gains[arm]]}
+    rho_failures = {arm: spearman(failures[known], gains[arm][known]) for arm in rho}
     return [
         "| task | AUC (estimates) | round-0 failures % | "
         + " | ".join(f"{labels.get(a, a)}: gain" for a in gains)
