@@ -492,7 +492,7 @@ def five_points_line(measure: str, diffs: np.ndarray) -> str:
     """The goal '>= Uniform + 5 points after 3 rounds at equal `measure`, 95 % interval above 0, >= 5 seeds'."""
     mean, half = t_interval(diffs)
     ok = len(diffs) >= 5 and mean >= 5 and mean - half > 0
-    short = [] if len(diffs) >= 5 else [f"{len(diffs)} of 5 seeds"]
+    short = [] if len(diffs) >= 5 else [f"{len(diffs)} seeds of the 5 asked"]
     short += [] if mean >= 5 else [f"{mean:+.1f} points, {5 - mean:.1f} short"]
     short += [] if np.isnan(half) or mean - half > 0 else ["the interval includes 0"]
     return (
@@ -567,7 +567,8 @@ def goal_lines(
         verdict = "met" if pairs and fewer == len(pairs) else "missed"
         lines.append(
             f"- ... with fewer demonstrations than the best initial-state arm ({labels.get(rival, rival)}): "
-            f"{verdict} on {fewer} of the {len(pairs)} seeds both ran (of Uniform's added demos, per seed: {shown})."
+            f"{verdict}, fewer on {fewer} of the {len(pairs)} seeds both ran (of Uniform's added demos, per seed: "
+            f"{shown})."
         )
     lines.append(five_points_line("expert frames", c.frames_diff))
     return lines

@@ -136,3 +136,18 @@ def test_predictability_table_ranks_auc_and_round0_failures_against_the_gains():
     assert lines[2] == "| a | 0.90 (4) | 20 | +2 |"
     assert rho == {"budgeted": pytest.approx(-1.0)}  # AUC ranks a > c > b, gains b > c > a
     assert lines[-1].endswith("Of the round-0 failure rate and gain, over the same tasks: B +1.00.")
+
+
+def test_goal_lines_count_the_seeds_where_takeover_needed_fewer_demos_and_the_seeds_missing():
+    r = runs(arm_frames=50)
+    for seed in range(3):
+        # The initial-state arm reaches Uniform's final (0.8) at round 1, with 1 of Uniform's 6 demos per task.
+        r[("initial", seed)] = report.load_run(summary("initial", seed, [0.5, 0.8, 0.9, 0.9], 50, 1))
+    comparisons = {
+        "takeover": report.compare(r, "takeover", [0, 1, 2]),
+        "initial": report.compare(r, "initial", [0, 1, 2]),
+    }
+    lines = report.goal_lines(comparisons, {"takeover"}, {})
+    fewer = next(line for line in lines if "fewer demonstrations than" in line)
+    assert "missed, fewer on 0 of the 3 seeds both ran" in fewer
+    assert "missed (3 seeds of the 5 asked)" in lines[-1]
