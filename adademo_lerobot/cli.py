@@ -18,6 +18,7 @@ import functools
 import importlib
 import json
 import logging
+import os
 import sys
 import tempfile
 import typing
@@ -28,7 +29,7 @@ from types import MappingProxyType
 from typing import Any
 
 from adademo_lerobot.configs import LEROBOT_CHOICE
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.errors import AdaDemoError, MachineFailure
 
 
 def lerobot_choice_type(kind: str) -> type:
@@ -253,6 +254,21 @@ def one_line_usage_errors(parse: Callable, *args) -> Any:
     return result
 
 
+def machine_failure_message(err: OSError) -> str:
+    """One line for an OSError the machine raised under a command: what failed, where, and what to do."""
+    import errno
+
+    where = f" ({err.filename})" if err.filename else ""
+    what = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        todo = "free space and run the same command to resume"
+    elif err.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        todo = "make the folder writable and run the same command to resume"
+    else:
+        todo = "fix the cause and run the same command to resume"
+    return f"{what}{where}: {todo}"
+
+
 def _resolve(target: str | Callable) -> Any:
     if not isinstance(target, str):
         return target
@@ -280,6 +296,12 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
         elif choice_fields(config_cls):
             cfg = one_line_usage_errors(parse_config, config_cls, argv)
         _resolve(target)(cfg)
+    except MachineFailure as err:
+        print(f"error: {' '.join(str(err).split())}", file=sys.stderr, flush=True)
+        if err.exit_at_once:
+            sys.stdout.flush()
+            os._exit(1)
+        sys.exit(1)
     except AdaDemoError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
@@ -289,6 +311,9 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
     except FileNotFoundError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
+    except OSError as err:  # the machine: a full disk, an I/O error, a folder that became unwritable
+        print(f"error: {machine_failure_message(err)}", file=sys.stderr)
+        sys.exit(1)
     except KeyboardInterrupt:
         print("interrupted: rerun the same command to resume", file=sys.stderr)
         sys.exit(130)

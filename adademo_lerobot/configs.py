@@ -150,10 +150,11 @@ class ExpandConfig(ExecutionArgs):
                 "collects from fresh initial states without evaluating: use --strategy.type=adademo or budgeted, "
                 "or --demo_start=initial"
             )
-        if self.plan_only and self.strategy.type not in ("adademo", "task_only"):
+        budgeted_task_only = self.strategy.type == "task_only" and bool(self.strategy.budget)
+        if self.plan_only and (self.strategy.type not in ("adademo", "task_only") or budgeted_task_only):
             raise AdaDemoError(
-                f"--plan_only predicts N_k = E/SR_k - E: it needs --strategy.type=adademo or task_only, not "
-                f"{self.strategy.type}"
+                f"--plan_only predicts N_k = E/SR_k - E: it needs --strategy.type=adademo or task_only (without "
+                f"--strategy.budget), not {self.strategy.type}" + (" with a budget" if budgeted_task_only else "")
             )
         if self.plan_episodes_per_task < 1:
             raise AdaDemoError(f"--plan_episodes_per_task must be >= 1, got {self.plan_episodes_per_task}")

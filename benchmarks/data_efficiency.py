@@ -72,6 +72,9 @@ ALL_ARMS = {
         "--train.sampler_alpha=0.5",
     ],
     "budgeted": ["--strategy.type=budgeted", "--train.sampler=trajectory"],
+    # Ablation A at the same budget and with the same evaluations as budgeted (the recipe's budget, CAP, decay):
+    # every failure is answered from a fresh state instead; budgeted minus this is principle B alone.
+    "task_only": ["--strategy.type=task_only", "--train.sampler=trajectory"],
     # Corrections from the point of failure (--demo_start=takeover), with either rule (the default chosen here).
     "budgeted_takeover": ["--strategy.type=budgeted", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
     "adademo_takeover": ["--strategy.type=adademo", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
@@ -95,12 +98,17 @@ LABELS = {
     "adademo_tempered": "AdaDemo + tempered sampler (alpha 0.5)",
     "budgeted_tempered": "Budgeted + tempered sampler (alpha 0.5)",
     "budgeted": "Budgeted + trajectory sampler",
+    "task_only": "Ablation A: budgeted's split from fresh states",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
     "budgeted_takeover_retry3": "Budgeted + takeover corrections (disagreement, 3 attempts there, no fallback)",
 }
 TORCH_THREADS: list[str] = []
+# --test_states per_seed: each seed is evaluated on its own fixed initial states (--eval.seed=100+seed), so the
+# intervals over seeds include the sampling of the test states; `shared`: every seed on eval seed 100's (the
+# folders written before this option).
+TEST_STATES = ["shared"]
 
 
 def adademo_run(run_dir: Path, *flags: str) -> None:
@@ -119,7 +127,8 @@ def adademo_run(run_dir: Path, *flags: str) -> None:
 
 
 def seed_flags(seed: int) -> list[str]:
-    return [f"--seed={seed}", f"--train.seed={1000 + seed}"]
+    flags = [f"--seed={seed}", f"--train.seed={1000 + seed}"]
+    return flags + ([f"--eval.seed={100 + seed}"] if TEST_STATES[0] == "per_seed" else [])
 
 
 def finished(run_dir: Path) -> bool:
@@ -403,8 +412,15 @@ def main() -> None:
         default=SUMMARIES.name,
         help="folder under benchmarks/results for the summaries (runs of one machine, paired by seed)",
     )
+    parser.add_argument(
+        "--test_states",
+        choices=["shared", "per_seed"],
+        default="shared",
+        help="per_seed: each seed's own fixed evaluation states (--eval.seed=100+seed); shared: eval seed 100's",
+    )
     args = parser.parse_args()
     SUMMARIES, RECIPE = RESULTS / args.summaries, args.recipe.resolve()
+    TEST_STATES[0] = args.test_states
     SUMMARIES.mkdir(parents=True, exist_ok=True)
     if args.torch_threads is not None:
         TORCH_THREADS.append(f"--torch_threads={args.torch_threads}")

@@ -421,6 +421,14 @@ class RoundContext:
             self.collect_demo(task, seed, record)
             self.progress(task, record)
 
+    def collect_from_next_fresh_state(self, task: str, draw: int, record: TaskRoundRecord) -> int:
+        """One demonstration from the task's fresh initial states, starting at draw `draw` (the next draw after
+        an expert failure, at most MAX_DRAWS_PER_DEMO); returns the draw to start from next time."""
+        for d in range(draw, draw + MAX_DRAWS_PER_DEMO):
+            if self.collect_demo(task, fresh_state_seed(self.seed, self.round_index, task, d), record):
+                return d + 1
+        return draw + MAX_DRAWS_PER_DEMO
+
     def progress(self, task: str, record: TaskRoundRecord) -> None:
         if self.on_progress is not None:
             with self._lock:

@@ -14,6 +14,11 @@ task reaches CAP, and then it says so):
   expert and every success updates the posterior, and so the split. Evaluation is spent only where
   demonstrations are planned, and only as long as it finds them.
 
+With `at_failed_states=False` the same loop is ablation A with a budget (`--strategy.type=task_only
+--strategy.budget=B`): the same evaluations, posterior and split, but each failure is answered by a demonstration
+from the task's next fresh random initial state (Uniform's stream of states), so that budgeted minus it measures
+principle B alone.
+
 Every decision depends only on journaled outcomes, so an interrupted round resumes to the same result, and the
 Ray executor gives the local one's.
 """
@@ -106,7 +111,8 @@ class BudgetedStrategy:
     cap: int
     max_eval_episodes_per_task: int
     posterior_decay: float
-    name = "budgeted"
+    at_failed_states: bool = True  # principle B; False: ablation A (a fresh state per failure)
+    name: str = "budgeted"
     commits_by_task = False  # one loop over the whole round: demos are committed in the order they arrive
 
     def start(self, ctx: RoundContext, resumed: dict | None) -> dict:
@@ -131,6 +137,7 @@ class BudgetedStrategy:
             records[t].planned_demos = first_plan[t]
             records[t].extra = {"budget": budget, "prior": list(posterior[t])}
         sampled = dict.fromkeys(tasks, 0)
+        fresh_draws = dict.fromkeys(tasks, 0)  # ablation A: the next fresh initial state of each task
         while sum(r.demos_added for r in records.values()) < budget:
             open_tasks = [
                 t
@@ -162,7 +169,8 @@ class BudgetedStrategy:
                 expansion_state_seed(ctx.seed, ctx.round_index, task, sampled[task] + j) for j in range(n)
             ]
             outcomes = ctx.evaluate(task, seeds)
-            ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
+            if self.at_failed_states:
+                ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
             alpha, beta = posterior[task]
             for outcome in outcomes:
                 sampled[task] += 1
@@ -173,7 +181,10 @@ class BudgetedStrategy:
                 else:
                     record.failures += 1
                     beta += 1
-                    ctx.collect_demo(task, outcome.seed, record)  # principle B: only where the policy failed
+                    if self.at_failed_states:  # principle B: only where the policy failed
+                        ctx.collect_demo(task, outcome.seed, record)
+                    else:
+                        fresh_draws[task] = ctx.collect_from_next_fresh_state(task, fresh_draws[task], record)
                 ctx.progress(task, record)
             posterior[task] = (alpha, beta)
         spent = sum(r.demos_added for r in records.values())

@@ -1,16 +1,20 @@
 """`--strategy.type=task_only`, ablation A: as many demonstrations per task as AdaDemo would allocate, but from
 fresh random initial states.
 
-The allocation is the paper's estimate N_k = E / SR_k - E (capped at CAP), with SR_k measured on
-`plan_episodes_per_task` evaluation episodes of this round's policy.
+Without a budget the allocation is the paper's estimate N_k = E / SR_k - E (capped at CAP), with SR_k measured on
+`plan_episodes_per_task` evaluation episodes of this round's policy. With `--strategy.budget=B` it is the
+budgeted strategy's loop (the same evaluations, posterior and split of exactly B demonstrations) with every
+failure answered from a fresh state instead of the failed one: budgeted minus this is principle B alone.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.seeds import plan_state_seeds
+from adademo_lerobot.strategies.adademo import check_decay, check_eval_bound
 from adademo_lerobot.strategies.base import (
     DEFAULT_TARGET_SUCCESSES,
     PerRound,
@@ -18,8 +22,11 @@ from adademo_lerobot.strategies.base import (
     StrategyConfig,
     check_per_round,
     per_round,
+    default_eval_bound,
     planned_demos,
 )
+from adademo_lerobot.strategies.budgeted import BudgetedStrategy
+from adademo_lerobot.strategies.estimates import DEFAULT_DECAY
 
 
 def estimate_success(ctx: RoundContext, task: str, record: TaskRoundRecord, episodes: int) -> float:
@@ -40,23 +47,50 @@ class TaskOnlyConfig(StrategyConfig):
     needs_policy = True
     collects_at_failed_states = False
 
-    # E_i in N_k = E / SR_k - E.
-    target_successes: PerRound = per_round(DEFAULT_TARGET_SUCCESSES)
+    # E_i in N_k = E / SR_k - E (default 10); or leave it out and give a budget.
+    target_successes: PerRound = per_round()
     # CAP_i: at most this many new demonstrations per task per round.
     max_demos_per_task: PerRound = per_round(50)
-    # Evaluation episodes per task that estimate SR_k.
+    # Evaluation episodes per task that estimate SR_k (without a budget).
     plan_episodes_per_task: int = 20
+    # B_i: demonstrations per round, split as the budgeted strategy splits them (from fresh states).
+    budget: PerRound = per_round()
+    # With a budget: the budgeted strategy's bound on evaluation episodes per task and round, and its decay.
+    max_eval_episodes_per_task: int | None = None
+    posterior_decay: float = DEFAULT_DECAY
 
     def validate(self) -> None:
-        check_per_round("target_successes", self.target_successes, required=True)
+        check_per_round("target_successes", self.target_successes)
+        check_per_round("budget", self.budget)
         check_per_round("max_demos_per_task", self.max_demos_per_task, required=True)
         check_per_round("plan_episodes_per_task", PerRound([self.plan_episodes_per_task]))
+        check_eval_bound(self.max_eval_episodes_per_task)
+        check_decay(self.posterior_decay)
+        if self.budget and self.target_successes:
+            raise AdaDemoError(
+                f"--strategy.budget={list(self.budget)} and --strategy.target_successes="
+                f"{list(self.target_successes)} both set the round's size: pass one"
+            )
+        if not self.budget and self.max_eval_episodes_per_task is not None:
+            raise AdaDemoError(
+                "--strategy.max_eval_episodes_per_task bounds the budgeted loop: give --strategy.budget too "
+                "(without a budget, --strategy.plan_episodes_per_task sets the evaluations)"
+            )
 
-    def build(self, round_in_run: int) -> TaskOnlyStrategy:
+    def build(self, round_in_run: int) -> TaskOnlyStrategy | BudgetedStrategy:
+        cap = self.max_demos_per_task.at(round_in_run)
+        if self.budget:
+            bound = self.max_eval_episodes_per_task or default_eval_bound(None, cap)
+            return BudgetedStrategy(
+                self.budget.at(round_in_run),
+                cap,
+                bound,
+                self.posterior_decay,
+                at_failed_states=False,
+                name="task_only",
+            )
         return TaskOnlyStrategy(
-            self.target_successes.at(round_in_run),
-            self.max_demos_per_task.at(round_in_run),
-            self.plan_episodes_per_task,
+            self.target_successes.at(round_in_run) or DEFAULT_TARGET_SUCCESSES, cap, self.plan_episodes_per_task
         )
 
 
