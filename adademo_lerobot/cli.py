@@ -29,7 +29,7 @@ from types import MappingProxyType
 from typing import Any
 
 from adademo_lerobot.configs import LEROBOT_CHOICE
-from adademo_lerobot.errors import AdaDemoError, MachineFailure
+from adademo_lerobot.errors import AdaDemoError, MachineError
 
 
 def lerobot_choice_type(kind: str) -> type:
@@ -296,7 +296,7 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
         elif choice_fields(config_cls):
             cfg = one_line_usage_errors(parse_config, config_cls, argv)
         _resolve(target)(cfg)
-    except MachineFailure as err:
+    except MachineError as err:
         print(f"error: {' '.join(str(err).split())}", file=sys.stderr, flush=True)
         if err.exit_at_once:
             sys.stdout.flush()

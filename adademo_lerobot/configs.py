@@ -154,7 +154,8 @@ class ExpandConfig(ExecutionArgs):
         if self.plan_only and (self.strategy.type not in ("adademo", "task_only") or budgeted_task_only):
             raise AdaDemoError(
                 f"--plan_only predicts N_k = E/SR_k - E: it needs --strategy.type=adademo or task_only (without "
-                f"--strategy.budget), not {self.strategy.type}" + (" with a budget" if budgeted_task_only else "")
+                f"--strategy.budget), not {self.strategy.type}"
+                + (" with a budget" if budgeted_task_only else "")
             )
         if self.plan_episodes_per_task < 1:
             raise AdaDemoError(f"--plan_episodes_per_task must be >= 1, got {self.plan_episodes_per_task}")

@@ -21,8 +21,8 @@ from adademo_lerobot.strategies.base import (
     RoundContext,
     StrategyConfig,
     check_per_round,
-    per_round,
     default_eval_bound,
+    per_round,
     planned_demos,
 )
 from adademo_lerobot.strategies.budgeted import BudgetedStrategy
@@ -90,7 +90,9 @@ class TaskOnlyConfig(StrategyConfig):
                 name="task_only",
             )
         return TaskOnlyStrategy(
-            self.target_successes.at(round_in_run) or DEFAULT_TARGET_SUCCESSES, cap, self.plan_episodes_per_task
+            self.target_successes.at(round_in_run) or DEFAULT_TARGET_SUCCESSES,
+            cap,
+            self.plan_episodes_per_task,
         )
 
 
