@@ -19,8 +19,10 @@ import importlib
 import json
 import logging
 import os
+import signal
 import sys
 import tempfile
+import threading
 import typing
 from collections import defaultdict
 from collections.abc import Callable
@@ -276,30 +278,53 @@ def _resolve(target: str | Callable) -> Any:
     return getattr(importlib.import_module(module), name)
 
 
+def _interrupted_by_signal(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def _close_progress_bars() -> None:
+    """Progress bars still open when a command fails end their line first, so that the `error:` line is the
+    command's last line, on a line of its own."""
+    from tqdm import tqdm
+
+    for bar in list(getattr(tqdm, "_instances", ())):
+        bar.close()
+
+
 def run_command(target: str | Callable, config_cls: type, lerobot_config: str | None = None) -> None:
     """Parse `config_cls` from the command line, then import and call `target` ("module:function") with it.
 
     `--help`, flag errors and `config.validate()` answer from a first parse that imports no LeRobot config;
     with `lerobot_choice` fields, or with `lerobot_config` ("module:Class", a LeRobot config of which
     `config_cls` holds our own flags), the config is then parsed in full. Bad input exits 2 with one `error:`
-    line; Ctrl-C exits 130 saying how to resume."""
+    line; a failure of the machine (a full disk, an I/O error, a lost Ray cluster) exits 1 with one `error:` line
+    that says the same command resumes; Ctrl-C (or SIGTERM) exits 130 saying how to resume."""
     import draccus
 
     configure_logging()
     argv = sys.argv[1:]
+    if threading.current_thread() is threading.main_thread():  # SIGTERM stops a command as Ctrl-C does
+        signal.signal(signal.SIGTERM, _interrupted_by_signal)
     try:
-        cfg = one_line_usage_errors(parse_light, config_cls, argv, lerobot_config is not None)
-        if hasattr(cfg, "validate"):
-            cfg.validate()
-        if lerobot_config is not None:
-            cfg = one_line_usage_errors(parse_config, _resolve(lerobot_config), argv)
-        elif choice_fields(config_cls):
-            cfg = one_line_usage_errors(parse_config, config_cls, argv)
-        _resolve(target)(cfg)
+        try:
+            cfg = one_line_usage_errors(parse_light, config_cls, argv, lerobot_config is not None)
+            if hasattr(cfg, "validate"):
+                cfg.validate()
+            if lerobot_config is not None:
+                cfg = one_line_usage_errors(parse_config, _resolve(lerobot_config), argv)
+            elif choice_fields(config_cls):
+                cfg = one_line_usage_errors(parse_config, config_cls, argv)
+            _resolve(target)(cfg)
+        except BaseException:
+            _close_progress_bars()
+            raise
     except MachineError as err:
         print(f"error: {' '.join(str(err).split())}", file=sys.stderr, flush=True)
         if err.exit_at_once:
+            from adademo_lerobot.files import COMMIT_LOCK
+
             sys.stdout.flush()
+            COMMIT_LOCK.acquire(timeout=120)  # a commit in another thread finishes (or rolls back) first
             os._exit(1)
         sys.exit(1)
     except AdaDemoError as err:

@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import json
 import os
-from contextlib import contextmanager
+import threading
+from contextlib import contextmanager, suppress
 from pathlib import Path
+
+# Held while a dataset commit writes or rolls back: a command that must leave at once (os._exit) takes it first,
+# so that it never leaves in the middle of a commit.
+COMMIT_LOCK = threading.RLock()
 
 
 def check_writable_location(path: Path, what: str) -> None:
@@ -50,11 +55,16 @@ def atomic_write_text(path: Path, text: str) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # a full disk: the old content stays, and no half-written temporary file
+        with suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 def atomic_write_json(path: Path, data, indent: int | None = 2) -> None:
@@ -62,13 +72,29 @@ def atomic_write_json(path: Path, data, indent: int | None = 2) -> None:
 
 
 def append_json_lines(path: Path, entries: list[dict]) -> None:
-    """Append one JSON object per line and fsync: once this returns, a kill cannot lose them."""
+    """Append one JSON object per line and fsync: once this returns, a kill cannot lose them. A write that fails
+    (a full disk) is cut off again, and a line a kill tore is dropped before appending, so that every line
+    after it stays readable."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a") as f:
-        f.write("".join(json.dumps(e) + "\n" for e in entries))
-        f.flush()
-        os.fsync(f.fileno())
+    data = "".join(json.dumps(e) + "\n" for e in entries).encode()
+    with open(path, "a+b") as f:
+        size = f.seek(0, os.SEEK_END)
+        if size:
+            f.seek(max(0, size - 65536))
+            tail = f.read()
+            cut = tail.rfind(b"\n") + 1
+            if not tail.endswith(b"\n") and (cut or len(tail) == size):  # torn by a kill: keep whole lines
+                size -= len(tail) - cut
+                f.truncate(size)
+        try:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        except BaseException:
+            with suppress(OSError):
+                f.truncate(size)
+            raise
 
 
 def read_json_lines(path: Path) -> list[dict]:

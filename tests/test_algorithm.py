@@ -247,17 +247,27 @@ class BudgetRound:
         self.dataset = type("Dataset", (), {"root": self.root})()
         self.evaluated = {t: [] for t in self.outcomes}
         self.collected = {t: [] for t in self.outcomes}
+        self.fresh = {t: [] for t in self.outcomes}
         self._position = {t: {} for t in self.outcomes}
 
     def new_record(self, task, strategy, target_successes=None, cap=None, demos=None):
         return TaskRoundRecord(self.round_index, task, strategy, target_successes, cap, demos, None)
 
-    def strategy(self):
+    def strategy(self, **options):
         from adademo_lerobot.strategies.budgeted import BudgetedStrategy
 
         return BudgetedStrategy(
-            self.budget, self.max_demos_per_task, self.max_eval_episodes_per_task, self.posterior_decay
+            self.budget,
+            self.max_demos_per_task,
+            self.max_eval_episodes_per_task,
+            self.posterior_decay,
+            **options,
         )
+
+    def collect_from_next_fresh_state(self, task, draw, record):
+        self.fresh[task].append(draw)
+        record.demos_added += 1
+        return draw + 1
 
     def evaluate(self, task, seeds):
         out = []
@@ -365,3 +375,33 @@ def test_the_papers_e_is_picked_to_fit_a_budget():
     assert target == 5 and plan == {"a": 5, "b": 15}  # E=6 would need 6 + 18 = 24 > 20
     target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.0}, cap=8)
     assert target == 8 and plan == {"a": 8, "b": 8}  # SR 0 gets CAP; past E=8 CAP stops the total growing
+
+
+def test_task_only_with_a_budget_evaluates_as_budgeted_but_demonstrates_from_fresh_states():
+    outcomes = {"easy": "SSSSSSSSFSSSSSSSSSSSSSSSS" * 4, "hard": "FFFSFFFFFFFFFFFFFFFFFFFF" * 4}
+    budgeted, ablation = BudgetRound(dict(outcomes), budget=10), BudgetRound(dict(outcomes), budget=10)
+    b = {r.task: r for r in budgeted.strategy().expand(budgeted)}
+    a = {r.task: r for r in ablation.strategy(at_failed_states=False, name="task_only").expand(ablation)}
+    assert ablation.evaluated == budgeted.evaluated  # the same evaluations, in the same order
+    assert {t: r.demos_added for t, r in a.items()} == {t: r.demos_added for t, r in b.items()}
+    assert not any(ablation.collected.values())  # no demonstration at a failed state
+    assert {t: len(v) for t, v in ablation.fresh.items()} == {t: r.demos_added for t, r in a.items()}
+    assert all(r.strategy == "task_only" for r in a.values())
+
+
+def test_rollout_cost_counts_rollouts_against_the_budget_and_closes_tasks_not_worth_evaluating():
+    outcomes = {"solved": "S" * 100, "weak": "FSFFSFFSFFSFFSFF" * 6, "mid": "SSSFSSSFSSSF" * 8}
+    ctx = BudgetRound(outcomes, budget=20, batch_size=2)
+    records = {r.task: r for r in ctx.strategy(rollout_cost=1.0, failure_worth=3.0).expand(ctx)}
+    cost = sum(r.demos_added + r.expert_failures + r.eval_episodes for r in records.values())
+    assert cost <= 20
+    # A task that keeps succeeding closes once c / p > W - 1 (p < 0.5): after one success from Beta(1, 1).
+    assert records["solved"].eval_episodes <= 2 and records["solved"].demos_added == 0
+    assert records["weak"].demos_added > records["mid"].demos_added
+    for task, r in records.items():  # demonstrations only at failed states, every evaluation accounted
+        assert all(ctx.outcomes[task][ctx._position[task][s]] == "F" for s in ctx.collected[task])
+        assert r.eval_episodes == r.successes + r.failures
+    # Rollouts free: the budget goes to demonstrations only, and every task stays worth evaluating.
+    free = BudgetRound(dict(outcomes), budget=20, batch_size=2)
+    records = {r.task: r for r in free.strategy(rollout_cost=0.0).expand(free)}
+    assert sum(r.demos_added for r in records.values()) == 20

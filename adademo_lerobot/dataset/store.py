@@ -7,17 +7,25 @@ New datasets are built in a sibling folder with `LeRobotDataset.create` and rena
 `LeRobotDataset.resume` and are transactions: LeRobot writes a resumed session into new parquet/video files and
 rewrites only `meta/info.json`, `meta/stats.json` and `meta/tasks.parquet`; we back those up (plus any
 `meta/episodes` file we must give the adademo columns) and list the existing files before writing, and delete
-the list once `finalize()` has written the parquet footers. A write killed halfway is rolled back on the next
-open: files it created are removed and the backed-up files restored. So the dataset on disk always holds
-exactly the committed episodes.
+the list once `finalize()` has written the parquet footers.
+
+A write that fails (a full disk, an I/O error, Ctrl-C, an exception of LeRobot's or ours) is rolled back before
+the exception leaves `append`: the files it created are removed and the backups renamed back over the files it
+rewrote. Rolling back only deletes and renames, so it needs no free space. A write killed outright (`kill -9`,
+power loss) is rolled back the same way on the next open. So the dataset on disk always holds exactly the
+committed episodes, and stock LeRobot opens it right after any failure.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import logging
 import os
 import shutil
+import signal
+import threading
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -51,8 +59,8 @@ from adademo_lerobot.dataset.metadata import (
     read_episode_metadata,
 )
 from adademo_lerobot.dataset.video import quiet_video_encoder, video_backend
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.files import atomic_write_json, atomic_write_text, check_writable_location
+from adademo_lerobot.errors import AdaDemoError, MachineError
+from adademo_lerobot.files import COMMIT_LOCK, atomic_write_json, atomic_write_text, check_writable_location
 from adademo_lerobot.patching import temporarily_set
 from adademo_lerobot.records import Demonstration
 from adademo_lerobot.suites import SuiteConfig, TaskSuite
@@ -66,8 +74,9 @@ def _all_files(root: Path) -> list[str]:
     return sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file())
 
 
-def recover_interrupted_write(root: Path) -> int:
-    """Undo a write that was killed before its commit. Returns the number of files removed."""
+def recover_interrupted_write(root: Path, failed_here: bool = False) -> int:
+    """Undo a write that was killed before its commit (`failed_here`: that failed in this process, whose error
+    says so). Returns the number of files removed."""
     root = Path(root)
     txn_path = root / TXN_FILE
     if not txn_path.exists():
@@ -82,33 +91,95 @@ def recover_interrupted_write(root: Path) -> int:
     flat = "backed_up" not in txn  # written by adademo-lerobot 0.1, which kept flat backups
     for rel in txn.get("backed_up", REWRITTEN_META):
         backup = root / TXN_BACKUP_DIR / (Path(rel).name if flat else rel)
-        if backup.exists():
+        if backup.exists():  # a rename, not a copy: restoring must work on a full disk
             (root / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(backup, root / rel)
+            os.replace(backup, root / rel)
         elif rel not in keep and (root / rel).exists():
             (root / rel).unlink()
+        # else: restored by an earlier, interrupted rollback (the rename is done)
     for d in sorted((p for p in root.rglob("*") if p.is_dir()), reverse=True):
         if not any(d.iterdir()):
             d.rmdir()
     txn_path.unlink()
     shutil.rmtree(root / TXN_BACKUP_DIR, ignore_errors=True)
-    log.warning("rolled back an interrupted write in %s (%d partial files removed)", root, removed)
+    if not failed_here:
+        log.warning("rolled back an interrupted write in %s (%d partial files removed)", root, removed)
     return removed
 
 
 def _begin_write(root: Path, backed_up: list[str]) -> None:
+    """Back up the files the write will rewrite and list every file, then mark the write as begun. If this fails
+    (no space for the backups), nothing of the dataset has changed yet: the backups are removed and it raises."""
     backup_dir = root / TXN_BACKUP_DIR
     shutil.rmtree(backup_dir, ignore_errors=True)
-    for rel in backed_up:
-        if (root / rel).exists():
-            (backup_dir / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(root / rel, backup_dir / rel)
-    atomic_write_json(root / TXN_FILE, {"files": _all_files(root), "backed_up": backed_up}, indent=None)
+    try:
+        for rel in backed_up:
+            if (root / rel).exists():
+                (backup_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(root / rel, backup_dir / rel)
+        atomic_write_json(root / TXN_FILE, {"files": _all_files(root), "backed_up": backed_up}, indent=None)
+    except BaseException:
+        shutil.rmtree(backup_dir, ignore_errors=True)
+        raise
 
 
 def _commit_write(root: Path) -> None:
     (root / TXN_FILE).unlink()  # the commit point
     shutil.rmtree(root / TXN_BACKUP_DIR, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """Ctrl-C (and SIGTERM) wait until a rollback has finished: a second Ctrl-C must not leave it half done. Only
+    the main thread receives signals, so elsewhere there is nothing to defer."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def _abandon(dataset) -> None:
+    """Close a failed write's LeRobot writers without finishing them: their files are about to be rolled back,
+    and LeRobot's clean-up at garbage collection (`finalize` in `__del__`) must not write metadata again."""
+    writer, meta = getattr(dataset, "writer", None), dataset.meta
+    meta._metadata_buffer.clear()
+    for obj, names in (
+        (writer, ("image_writer", "_streaming_encoder", "_pq_writer")),
+        (meta, ("_pq_writer",)),
+    ):
+        for name in names:
+            handle = getattr(obj, name, None)
+            if handle is None:
+                continue
+            with contextlib.suppress(Exception):  # a full disk may refuse even the close
+                if name == "image_writer":
+                    handle.stop()
+                else:
+                    handle.close()
+            setattr(obj, name, None)
+    for obj in (writer, meta):
+        if obj is not None:
+            obj._finalized = True
+    dataset._is_finalized = True
+
+
+def write_failure(err: BaseException, root: Path, what: str) -> MachineError:
+    """The one-line error for a write that failed and was rolled back."""
+    if isinstance(err, OSError):
+        where = f" ({err.filename})" if err.filename else ""
+        full = err.errno in (errno.ENOSPC, errno.EDQUOT)
+        cause = f"{err.strerror or err}{where}"
+        todo = "free space and run the same command to resume" if full else "run the same command to resume"
+    else:  # LeRobot's or ours: say what it was, so that a rerun failing the same way can be reported
+        cause, todo = f"{type(err).__name__}: {err}", "run the same command to resume"
+    return MachineError(
+        f"writing {what} to the dataset {root} failed ({cause}); the dataset was rolled back to its last commit "
+        f"and opens as before: {todo}"
+    )
 
 
 def _episode_files_without_columns(root: Path) -> list[Path]:
@@ -273,38 +344,72 @@ class DemoDataset:
         producer: str,
         suite: TaskSuite | None,
     ) -> list[int]:
-        import datasets
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
         if not demos:
             return []
+        with COMMIT_LOCK:  # a command that must leave at once waits for this commit (or its rollback)
+            return self._write(demos, round_index, source, collector, producer, suite)
+
+    def _write(self, demos, round_index, source, collector, producer, suite) -> list[int]:
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
         quiet_video_encoder()
         creating = not has_dataset(self.root)
         if creating and suite is None:
             raise AdaDemoError(f"no LeRobot dataset at {self.root} to add the recorded episodes to")
+        what = f"{len(demos)} episode{'s' * (len(demos) != 1)}"
+        write_root = self.root.with_name(f".{self.root.name}.adademo-creating") if creating else self.root
+        dataset = None
+        try:
+            if creating:
+                # A brand-new dataset is built in a sibling folder and renamed into place once it is whole.
+                shutil.rmtree(write_root, ignore_errors=True)
+                dataset = LeRobotDataset.create(
+                    repo_id=self.repo_id,
+                    fps=suite.fps,
+                    features=dataset_features(suite),
+                    root=write_root,
+                    robot_type=suite.name,
+                    video_backend=video_backend(),
+                )
+                atomic_write_text(write_root / SUITE_FILE, suite.config.to_json())
+            else:
+                adopt = _episode_files_without_columns(self.root)
+                suite_missing = suite is not None and not (self.root / SUITE_FILE).exists()
+                rewritten = [*REWRITTEN_META, *(str(f.relative_to(self.root)) for f in adopt)]
+                _begin_write(self.root, rewritten + [SUITE_FILE] * suite_missing)
+                for path in adopt:  # episodes that arrived without our columns (LeRobot's tools drop them)
+                    _add_adademo_columns(path, producer)
+                if suite_missing:  # LeRobot's tools copy no extra files: keep the (rebuilt) suite from now on
+                    atomic_write_text(self.root / SUITE_FILE, suite.config.to_json())
+                with _last_episode_row_only(self.root):
+                    dataset = LeRobotDataset.resume(
+                        self.repo_id, root=self.root, video_backend=video_backend()
+                    )
+            indices = self._write_episodes(dataset, demos, round_index, source, collector, producer)
+        except BaseException as err:
+            with _signals_deferred():
+                if dataset is not None:
+                    _abandon(dataset)
+                if creating:
+                    shutil.rmtree(write_root, ignore_errors=True)
+                else:
+                    recover_interrupted_write(self.root, failed_here=True)
+            if isinstance(err, Exception) and not isinstance(err, AdaDemoError):
+                raise write_failure(err, self.root, what) from err
+            raise
         if creating:
-            # A brand-new dataset is built in a sibling folder and renamed into place once it is whole.
-            write_root = self.root.with_name(f".{self.root.name}.adademo-creating")
-            shutil.rmtree(write_root, ignore_errors=True)
-            dataset = LeRobotDataset.create(
-                repo_id=self.repo_id,
-                fps=suite.fps,
-                features=dataset_features(suite),
-                root=write_root,
-                robot_type=suite.name,
-                video_backend=video_backend(),
-            )
-            atomic_write_text(write_root / SUITE_FILE, suite.config.to_json())
+            if self.root.exists():
+                self.root.rmdir()  # an empty folder (anything else was refused by check_new_root)
+            os.replace(write_root, self.root)
         else:
-            adopt = _episode_files_without_columns(self.root)
-            suite_missing = suite is not None and not (self.root / SUITE_FILE).exists()
-            _begin_write(self.root, [*REWRITTEN_META, *(str(f.relative_to(self.root)) for f in adopt)])
-            for path in adopt:  # episodes that arrived without our columns (LeRobot's tools drop them)
-                _add_adademo_columns(path, producer)
-            if suite_missing:  # LeRobot's tools copy no extra files: keep the (rebuilt) suite from now on
-                atomic_write_text(self.root / SUITE_FILE, suite.config.to_json())
-            with _last_episode_row_only(self.root):
-                dataset = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=video_backend())
+            _commit_write(self.root)
+        return indices
+
+    @staticmethod
+    def _write_episodes(dataset, demos, round_index, source, collector, producer) -> list[int]:
+        import datasets
+
         # One "Map" bar per episode otherwise; disabled after opening, whose loader turns the bars back on.
         datasets.disable_progress_bars()
         indices = []
@@ -330,10 +435,4 @@ class DemoDataset:
                 with _saving_extra_columns(dataset, columns):
                     dataset.save_episode()
             dataset.finalize()
-        if creating:
-            if self.root.exists():
-                self.root.rmdir()  # an empty folder (anything else was refused by check_new_root)
-            os.replace(write_root, self.root)
-        else:
-            _commit_write(self.root)
         return indices

@@ -26,8 +26,10 @@ Ray executor gives the local one's.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
+from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.seeds import expansion_state_seed
 from adademo_lerobot.strategies.adademo import check_decay, check_eval_bound
@@ -39,6 +41,7 @@ from adademo_lerobot.strategies.base import (
     default_eval_bound,
     per_round,
 )
+from adademo_lerobot.strategies.costed import RANKINGS, expand_paying_for_rollouts
 from adademo_lerobot.strategies.estimates import DEFAULT_DECAY, failure_mean, prior_from_earlier_rounds
 
 log = logging.getLogger(__name__)
@@ -92,17 +95,54 @@ class BudgetedConfig(StrategyConfig):
     max_eval_episodes_per_task: int | None = None
     # Weight of an earlier round's evaluation outcomes per round since (1: all count the same).
     posterior_decay: float = DEFAULT_DECAY
+    # What a policy rollout costs, in demonstrations (a robot: about 1, a scene reset each): the budget then pays
+    # for rollouts too, and evaluation goes only where a found failure is worth its rollouts (strategies/costed.py).
+    rollout_cost: float | None = None
+    # With a rollout cost: how many demonstrations from random states one at a failed state is worth.
+    failure_worth: float = 3.0
+    # With a rollout cost: `random` states, or `knn`: the states predicted likeliest to fail first.
+    rank_states: str = "random"
 
     def validate(self) -> None:
         check_per_round("budget", self.budget, required=True)
         check_per_round("max_demos_per_task", self.max_demos_per_task, required=True)
         check_eval_bound(self.max_eval_episodes_per_task)
         check_decay(self.posterior_decay)
+        check_rollout_cost(self.rollout_cost, self.failure_worth, self.rank_states)
 
     def build(self, round_in_run: int) -> BudgetedStrategy:
         cap = self.max_demos_per_task.at(round_in_run)
         bound = self.max_eval_episodes_per_task or default_eval_bound(None, cap)
-        return BudgetedStrategy(self.budget.at(round_in_run), cap, bound, self.posterior_decay)
+        return BudgetedStrategy(
+            self.budget.at(round_in_run),
+            cap,
+            bound,
+            self.posterior_decay,
+            rollout_cost=self.rollout_cost,
+            failure_worth=self.failure_worth,
+            rank_states=self.rank_states,
+        )
+
+
+def check_rollout_cost(rollout_cost: float | None, failure_worth: float, rank_states: str) -> None:
+    if rollout_cost is None:
+        if failure_worth != 3.0 or rank_states != "random":
+            raise AdaDemoError(
+                "--strategy.failure_worth and --strategy.rank_states are used with --strategy.rollout_cost: give "
+                "the cost of a policy rollout in demonstrations (e.g. 1 on a robot), or drop them"
+            )
+        return
+    if not math.isfinite(rollout_cost) or rollout_cost < 0:
+        raise AdaDemoError(
+            f"--strategy.rollout_cost must be a number >= 0 (what a policy rollout costs, in demonstrations: "
+            f"about 1 on a robot), got {rollout_cost}"
+        )
+    if not failure_worth > 1:
+        raise AdaDemoError(f"--strategy.failure_worth must be > 1 (demonstrations), got {failure_worth}")
+    if rank_states not in RANKINGS:
+        raise AdaDemoError(
+            f"--strategy.rank_states must be one of {', '.join(RANKINGS)}, got {rank_states!r}"
+        )
 
 
 @dataclass
@@ -113,17 +153,29 @@ class BudgetedStrategy:
     posterior_decay: float
     at_failed_states: bool = True  # principle B; False: ablation A (a fresh state per failure)
     name: str = "budgeted"
+    rollout_cost: float | None = None
+    failure_worth: float = 3.0
+    rank_states: str = "random"
     commits_by_task = False  # one loop over the whole round: demos are committed in the order they arrive
 
     def start(self, ctx: RoundContext, resumed: dict | None) -> dict:
-        return {
+        settings = {
             "budget": self.budget,
             "max_demos_per_task": self.cap,
             "max_eval_episodes_per_task": self.max_eval_episodes_per_task,
             "posterior_decay": self.posterior_decay,
         }
+        if self.rollout_cost is not None:  # (rounds journaled before the option keep their settings)
+            settings |= {
+                "rollout_cost": self.rollout_cost,
+                "failure_worth": self.failure_worth,
+                "rank_states": self.rank_states,
+            }
+        return settings
 
     def expand(self, ctx: RoundContext) -> list[TaskRoundRecord]:
+        if self.rollout_cost is not None:
+            return expand_paying_for_rollouts(self, ctx)
         tasks, budget, cap = ctx.suite.tasks, self.budget, self.cap
         posterior = {
             t: prior_from_earlier_rounds(ctx.dataset.root, ctx.round_index, t, self.posterior_decay)

@@ -1,0 +1,171 @@
+"""The budgeted strategy when policy rollouts cost something (`--strategy.rollout_cost=c`, in demonstrations).
+
+On a robot every episode needs the scene reset, a policy rollout as much as a demonstration. With a rollout cost,
+the round's budget B pays for both: expert attempts (kept or failed) cost 1, rollouts c, and the round stops when
+the next rollout and the demonstration it may lead to would overspend. Evaluation goes only where a found failure
+is worth its rollouts:
+
+- the task evaluated next is the open one with the highest expected failure rate p (its Beta posterior, as the
+  budgeted strategy keeps it): its failures are the cheapest to find, and principle A wants demos there;
+- a task closes for the round once the expected rollout cost of its next failure, c / p, exceeds what a
+  demonstration at a failure is worth beyond one from a random state, W - 1 demonstrations (W =
+  `--strategy.failure_worth`: the paper reaches Uniform's result with about a third of the data, W = 3). A task
+  that keeps succeeding closes after a rollout or two instead of being evaluated to the bound; budget that no open
+  task is worth is left unspent, which is what the user saves;
+- `--strategy.rank_states=knn` evaluates the candidate states a k-nearest-neighbour vote over every outcome seen so
+  far (earlier rounds and this one) predicts most likely to fail, and uses that prediction for p.
+
+Every decision depends only on journaled outcomes, so an interrupted round resumes to the same result.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from adademo_lerobot.ledger import read_round_evaluations
+from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.seeds import expansion_state_seed
+from adademo_lerobot.strategies.estimates import failure_mean, prior_from_earlier_rounds
+
+if TYPE_CHECKING:
+    from adademo_lerobot.strategies.base import RoundContext
+    from adademo_lerobot.strategies.budgeted import BudgetedStrategy
+
+RANKINGS = ("random", "knn")
+NEIGHBOURS = 5
+MIN_OUTCOMES = 5  # outcomes (with at least one failure) before the k-NN ranks candidates
+CANDIDATES = 8  # candidate states drawn per state evaluated, for ranking
+
+
+def round_cost(records: dict[str, TaskRoundRecord], rollout_cost: float) -> float:
+    """What the round has spent, in demonstrations: every expert attempt, and every rollout at its cost."""
+    return sum(r.demos_added + r.expert_failures + rollout_cost * r.eval_episodes for r in records.values())
+
+
+class FailureRanker:
+    """Candidate initial states of one task in order of predicted failure: the share of failures among the k
+    nearest evaluated states (standardized features), from every outcome of the earlier rounds and this one."""
+
+    def __init__(self, ctx: RoundContext, task: str):
+        self.ctx, self.task = ctx, task
+        self._state_of: dict[int, np.ndarray] = {}
+        self.states: list[np.ndarray] = []
+        self.failed: list[bool] = []
+        for r in range(1, ctx.round_index):
+            for e in read_round_evaluations(ctx.dataset.root, r):
+                if e.get("type") == "eval" and e["task"] == task:
+                    self.add(e["seed"], not e["success"])
+
+    def state(self, seed: int) -> np.ndarray:
+        if seed not in self._state_of:
+            state = self.ctx.suite.sample_initial_state(self.task, seed)
+            self._state_of[seed] = np.asarray(state, dtype=np.float64)
+        return self._state_of[seed]
+
+    def add(self, seed: int, failed: bool) -> None:
+        self.states.append(self.state(seed))
+        self.failed.append(failed)
+
+    def scores(self, seeds: list[int]) -> np.ndarray | None:
+        """Predicted failure probability of each seed's state (None: too few outcomes to predict)."""
+        failed = np.asarray(self.failed, dtype=np.float64)
+        if len(failed) < MIN_OUTCOMES or not failed.any():
+            return None
+        known = np.stack(self.states)
+        mean, std = known.mean(0), known.std(0)
+        keep = std > 1e-12
+        a = (known[:, keep] - mean[keep]) / std[keep]
+        states = np.stack([self.state(s) for s in seeds])
+        b = (states[:, keep] - mean[keep]) / std[keep]
+        nearest = np.argsort(((b[:, None, :] - a[None, :, :]) ** 2).sum(-1), axis=1, kind="stable")
+        return failed[nearest[:, :NEIGHBOURS]].mean(1)
+
+
+def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) -> list[TaskRoundRecord]:
+    tasks, cap, c = ctx.suite.tasks, strategy.cap, strategy.rollout_cost
+    threshold = c / (strategy.failure_worth - 1)  # a task is worth evaluating while p >= c / (W - 1)
+    posterior = {
+        t: prior_from_earlier_rounds(ctx.dataset.root, ctx.round_index, t, strategy.posterior_decay)
+        for t in tasks
+    }
+    records = {t: ctx.new_record(t, strategy.name, cap=cap) for t in tasks}
+    for t in tasks:
+        records[t].extra = {"budget": strategy.budget, "prior": list(posterior[t]), "rollout_cost": c}
+    rankers = {t: FailureRanker(ctx, t) for t in tasks} if strategy.rank_states == "knn" else {}
+    drawn = dict.fromkeys(tasks, 0)  # candidate states drawn so far (each is evaluated at most once)
+    pool: dict[str, list[int]] = {t: [] for t in tasks}  # drawn, not yet evaluated
+
+    def expected_failure(t: str) -> float:
+        """p for the task's next state: the posterior mean, or the best candidate's predicted probability."""
+        if t in rankers:
+            refill(t)
+            scores = rankers[t].scores(pool[t])
+            if scores is not None:
+                return float(scores.max())
+        return failure_mean(posterior[t])
+
+    def refill(t: str) -> None:
+        while len(pool[t]) < CANDIDATES * ctx.batch_size:
+            pool[t].append(expansion_state_seed(ctx.seed, ctx.round_index, t, drawn[t]))
+            drawn[t] += 1
+
+    def next_states(t: str, n: int) -> list[int]:
+        if t not in rankers:
+            seeds = [expansion_state_seed(ctx.seed, ctx.round_index, t, drawn[t] + j) for j in range(n)]
+            drawn[t] += n
+            return seeds
+        scores = rankers[t].scores(pool[t])
+        order = list(range(len(pool[t]))) if scores is None else list(np.argsort(-scores, kind="stable"))
+        chosen = [pool[t][i] for i in order[:n]]
+        pool[t] = [s for s in pool[t] if s not in chosen]
+        return chosen
+
+    while True:
+        left = strategy.budget - round_cost(records, c)
+        estimates = {
+            t: expected_failure(t)
+            for t in tasks
+            if records[t].demos_added < cap and records[t].eval_episodes < strategy.max_eval_episodes_per_task
+        }
+        worth = {t: p for t, p in estimates.items() if p >= threshold}
+        affordable = int(left // (c + 1))  # rollouts that can still pay for the demonstration each may need
+        if not worth or affordable < 1:
+            break
+        task = max(worth, key=lambda t: (worth[t], -tasks.index(t)))
+        record = records[task]
+        n = min(
+            ctx.batch_size,
+            affordable,
+            cap - record.demos_added,
+            strategy.max_eval_episodes_per_task - record.eval_episodes,
+        )
+        outcomes = ctx.evaluate(task, next_states(task, n))
+        ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
+        alpha, beta = posterior[task]
+        for outcome in outcomes:
+            record.eval_episodes += 1
+            if outcome.success:
+                record.successes += 1
+                alpha += 1
+            else:
+                record.failures += 1
+                beta += 1
+                ctx.collect_demo(task, outcome.seed, record)
+            if task in rankers:
+                rankers[task].add(outcome.seed, not outcome.success)
+            ctx.progress(task, record)
+        posterior[task] = (alpha, beta)
+    spent = round_cost(records, c)
+    for t in tasks:
+        r = records[t]
+        r.cap_hit = r.demos_added >= cap
+        r.eval_bound_hit = r.eval_episodes >= strategy.max_eval_episodes_per_task and not r.cap_hit
+        r.extra.update(
+            posterior=list(posterior[t]),
+            posterior_success_mean=1 - failure_mean(posterior[t]),
+            round_cost=spent,
+            closed_as_not_worth=failure_mean(posterior[t]) < threshold,
+        )
+    return [records[t] for t in tasks]
