@@ -75,6 +75,15 @@ ALL_ARMS = {
     # Ablation A at the same budget and with the same evaluations as budgeted (the recipe's budget, CAP, decay):
     # every failure is answered from a fresh state instead; budgeted minus this is principle B alone.
     "task_only": ["--strategy.type=task_only", "--train.sampler=trajectory"],
+    # Rollouts paid from the budget at the cost of a demonstration (a robot's scene reset each): B_i episodes per
+    # round, Uniform's; evaluation only where a found failure is worth its rollouts (W = 3), random or k-NN states.
+    "costed": ["--strategy.type=budgeted", "--train.sampler=trajectory", "--strategy.rollout_cost=1"],
+    "costed_knn": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        "--strategy.rollout_cost=1",
+        "--strategy.rank_states=knn",
+    ],
     # Corrections from the point of failure (--demo_start=takeover), with either rule (the default chosen here).
     "budgeted_takeover": ["--strategy.type=budgeted", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
     "adademo_takeover": ["--strategy.type=adademo", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
@@ -99,6 +108,8 @@ LABELS = {
     "budgeted_tempered": "Budgeted + tempered sampler (alpha 0.5)",
     "budgeted": "Budgeted + trajectory sampler",
     "task_only": "Ablation A: budgeted's split from fresh states",
+    "costed": "Budgeted paying for rollouts (cost 1, W = 3)",
+    "costed_knn": "Budgeted paying for rollouts (cost 1, W = 3), k-NN states",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
