@@ -395,7 +395,7 @@ def test_rollout_cost_counts_rollouts_against_the_budget_and_closes_tasks_not_wo
     records = {r.task: r for r in ctx.strategy(rollout_cost=1.0, failure_worth=3.0).expand(ctx)}
     cost = sum(r.demos_added + r.expert_failures + r.eval_episodes for r in records.values())
     assert cost <= 20
-    # A task that keeps succeeding closes once c / p > W - 1 (p < 0.5): after one success from Beta(1, 1).
+    # A task that keeps succeeding closes once c / u > W - 1 (u < 0.5): after two successes from Beta(1, 1).
     assert records["solved"].eval_episodes <= 2 and records["solved"].demos_added == 0
     assert records["weak"].demos_added > records["mid"].demos_added
     for task, r in records.items():  # demonstrations only at failed states, every evaluation accounted

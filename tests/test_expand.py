@@ -111,6 +111,28 @@ def test_uniform_adds_exactly_n_per_task_from_fresh_states(dataset):
         assert set(rows["adademo/seed"]) <= {fresh_state_seed(0, 1, r["task"], d) for d in range(12)}
 
 
+def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset, ckpt):
+    """Round 2 ranks its states by the outcomes of round 1 (k-NN): two rounds, each within its budget, every demo
+    at a state the policy failed, and the journaled evaluations are exactly the ledger's rollouts."""
+    for round_index in (1, 2):
+        expand(
+            dataset,
+            f"--policy.path={ckpt}",
+            "--strategy.type=budgeted",
+            "--strategy.budget=6",
+            "--strategy.rollout_cost=0.5",
+            "--strategy.rank_states=knn",
+            "--eval.batch_size=2",
+        )
+        _, new, ledger = check_ledger_agrees(dataset, round_index)
+        cost = sum(r["demos_added"] + r["expert_failures"] + 0.5 * r["eval_episodes"] for r in ledger)
+        assert 0 < cost <= 6 and all(r["extra"]["round_cost"] == cost for r in ledger)
+        evaluations = [e for e in read_round_evaluations(dataset, round_index) if e["type"] == "eval"]
+        assert len(evaluations) == sum(r["eval_episodes"] for r in ledger)
+        failed = {(e["task"], e["seed"]) for e in evaluations if not e["success"]}
+        assert set(zip(new.task, new["adademo/seed"], strict=True)) <= failed
+
+
 @pytest.mark.slow
 def test_task_only_allocates_like_adademo_from_fresh_states(dataset, ckpt):
     expand(
@@ -240,6 +262,17 @@ def test_bad_input_gets_one_clear_error_and_no_change(dataset, ckpt, tmp_path):
         f"--policy.path={ckpt}", "--strategy.target_successes=[5,10]", match="adademo-expand runs one round"
     )
     fails(f"--policy.path={ckpt}", "--plan_episodes_per_task=5", match="used with --plan_only")
+    # A rollout cost: a number >= 0, for the strategy that uses it.
+    budgeted = [f"--policy.path={ckpt}", "--strategy.type=budgeted", "--strategy.budget=4"]
+    fails(*budgeted, "--strategy.rollout_cost=-1", match="rollout_cost must be a number >= 0")
+    fails(*budgeted, "--strategy.rollout_cost=abc", match="rollout_cost")
+    fails(*budgeted, "--strategy.rank_states=knn", match="used with --strategy.rollout_cost")
+    fails(
+        "--strategy.type=uniform",
+        "--strategy.demos_per_task=1",
+        "--strategy.rollout_cost=1",
+        match="rollout_cost",
+    )
     fails(f"--policy.path={tmp_path / 'missing'}", match="no LeRobot checkpoint")
     fails("--strategy.type=adademo", match="--policy.path")
     with exclusive_use(

@@ -19,7 +19,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
 
@@ -182,6 +182,10 @@ class Outcome:
     success: bool
 
 
+class RoundAbortedError(Exception):
+    """Raised in a task's loop when another task's loop failed: the round stops and that failure is reported."""
+
+
 class OrderedAppender:
     """Commits demonstrations to the dataset in the order a sequential round would: task by task in the suite's
     order, each task's demos in the order its loop asked for them, a commit every `commit_every` demos and at
@@ -261,6 +265,8 @@ class RoundContext:
     _takeover_states: dict[tuple[str, int], list[float]] = field(default_factory=dict)
     _appender: OrderedAppender | None = None
     _lock: threading.RLock = field(default_factory=threading.RLock)
+    # Set when one task's loop failed: the others stop at their next evaluation or demonstration.
+    _aborted: threading.Event = field(default_factory=threading.Event)
     eval_env_steps: int = (
         0  # env steps of the evaluations this context ran (not those reused from the journal)
     )
@@ -305,8 +311,13 @@ class RoundContext:
                 self.journal.append(*entries)
 
     # -- evaluation -------------------------------------------------------------------------------------
+    def _check_not_aborted(self) -> None:
+        if self._aborted.is_set():
+            raise RoundAbortedError
+
     def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
         """Policy outcomes from these seeds' initial states; journaled outcomes are reused, not re-run."""
+        self._check_not_aborted()
         known = dict(self.journal.evaluations(task)) if self.journal else {}
         todo = [s for s in seeds if s not in known]
         if todo:
@@ -344,6 +355,7 @@ class RoundContext:
 
     def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
         """Ask the expert for a demonstration from exactly this seed's initial state (at most once a round)."""
+        self._check_not_aborted()
         if seed in self._committed.get(task, set()):
             record.demos_added += 1  # committed before an interruption: its cost is in the journal
             if self.journal and seed in self.journal.demos(task):
@@ -462,7 +474,13 @@ class RoundContext:
         with ThreadPoolExecutor(max_workers=len(self.suite.tasks), thread_name_prefix="adademo-task") as pool:
             futures = [pool.submit(one, task) for task in self.suite.tasks]
             try:
-                return [f.result() for f in futures]
-            except BaseException:
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise
+                wait(futures, return_when=FIRST_EXCEPTION)
+            finally:  # a failed task (or Ctrl-C here) stops the others at their next step, never inside a commit
+                if not all(f.done() and f.exception() is None for f in futures):
+                    self._aborted.set()
+                    pool.shutdown(wait=True, cancel_futures=True)
+            failed = [f.exception() for f in futures if not f.cancelled() and f.exception() is not None]
+            first = next((e for e in failed if not isinstance(e, RoundAbortedError)), None)
+            if first is not None:
+                raise first
+            return [f.result() for f in futures]

@@ -5,15 +5,18 @@ the round's budget B pays for both: expert attempts (kept or failed) cost 1, rol
 the next rollout and the demonstration it may lead to would overspend. Evaluation goes only where a found failure
 is worth its rollouts:
 
-- the task evaluated next is the open one with the highest expected failure rate p (its Beta posterior, as the
-  budgeted strategy keeps it): its failures are the cheapest to find, and principle A wants demos there;
-- a task closes for the round once the expected rollout cost of its next failure, c / p, exceeds what a
-  demonstration at a failure is worth beyond one from a random state, W - 1 demonstrations (W =
+- each task's failure rate p has a Beta posterior (as the budgeted strategy keeps it: the earlier rounds'
+  outcomes, decayed, then this round's); its optimistic value u, the posterior's 80th percentile, decides;
+- a task closes for the round once even u makes the expected rollout cost of its next failure, c / u, exceed what
+  a demonstration at a failure is worth beyond one from a random state, W - 1 demonstrations (W =
   `--strategy.failure_worth`: the paper reaches Uniform's result with about a third of the data, W = 3). A task
   that keeps succeeding closes after a rollout or two instead of being evaluated to the bound; budget that no open
   task is worth is left unspent, which is what the user saves;
+- the open task with the highest u is evaluated next (its failures are the likeliest cheap, principle A wants
+  demos there, and a task not yet tried has a high u, so every task is probed before one takes the round), one
+  state at first and as many at once as it has found failures this round (at most `--eval.batch_size`);
 - `--strategy.rank_states=knn` evaluates the candidate states a k-nearest-neighbour vote over every outcome seen so
-  far (earlier rounds and this one) predicts most likely to fail, and uses that prediction for p.
+  far (earlier rounds and this one) predicts most likely to fail, instead of the next random ones.
 
 Every decision depends only on journaled outcomes, so an interrupted round resumes to the same result.
 """
@@ -34,6 +37,7 @@ if TYPE_CHECKING:
     from adademo_lerobot.strategies.budgeted import BudgetedStrategy
 
 RANKINGS = ("random", "knn")
+OPTIMISM = 0.8  # the posterior quantile of the failure rate that opens, closes and orders the tasks
 NEIGHBOURS = 5
 MIN_OUTCOMES = 5  # outcomes (with at least one failure) before the k-NN ranks candidates
 CANDIDATES = 8  # candidate states drawn per state evaluated, for ranking
@@ -97,14 +101,11 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
     drawn = dict.fromkeys(tasks, 0)  # candidate states drawn so far (each is evaluated at most once)
     pool: dict[str, list[int]] = {t: [] for t in tasks}  # drawn, not yet evaluated
 
-    def expected_failure(t: str) -> float:
-        """p for the task's next state: the posterior mean, or the best candidate's predicted probability."""
-        if t in rankers:
-            refill(t)
-            scores = rankers[t].scores(pool[t])
-            if scores is not None:
-                return float(scores.max())
-        return failure_mean(posterior[t])
+    def optimistic_failure(t: str) -> float:
+        from scipy.stats import beta
+
+        alpha, b = posterior[t]
+        return float(beta.ppf(OPTIMISM, b, alpha))  # the failure rate's Beta(beta, alpha) quantile
 
     def refill(t: str) -> None:
         while len(pool[t]) < CANDIDATES * ctx.batch_size:
@@ -116,6 +117,7 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
             seeds = [expansion_state_seed(ctx.seed, ctx.round_index, t, drawn[t] + j) for j in range(n)]
             drawn[t] += n
             return seeds
+        refill(t)
         scores = rankers[t].scores(pool[t])
         order = list(range(len(pool[t]))) if scores is None else list(np.argsort(-scores, kind="stable"))
         chosen = [pool[t][i] for i in order[:n]]
@@ -125,18 +127,19 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
     while True:
         left = strategy.budget - round_cost(records, c)
         estimates = {
-            t: expected_failure(t)
+            t: optimistic_failure(t)
             for t in tasks
             if records[t].demos_added < cap and records[t].eval_episodes < strategy.max_eval_episodes_per_task
         }
-        worth = {t: p for t, p in estimates.items() if p >= threshold}
+        worth = {t: u for t, u in estimates.items() if u >= threshold}
         affordable = int(left // (c + 1))  # rollouts that can still pay for the demonstration each may need
         if not worth or affordable < 1:
             break
-        task = max(worth, key=lambda t: (worth[t], -tasks.index(t)))
+        task = max(worth, key=lambda t: (worth[t], -records[t].eval_episodes, -tasks.index(t)))
         record = records[task]
         n = min(
             ctx.batch_size,
+            max(1, record.failures),  # one state at first, more as the task shows failures
             affordable,
             cap - record.demos_added,
             strategy.max_eval_episodes_per_task - record.eval_episodes,
@@ -166,6 +169,6 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
             posterior=list(posterior[t]),
             posterior_success_mean=1 - failure_mean(posterior[t]),
             round_cost=spent,
-            closed_as_not_worth=failure_mean(posterior[t]) < threshold,
+            closed_as_not_worth=optimistic_failure(t) < threshold,
         )
     return [records[t] for t in tasks]
