@@ -188,4 +188,6 @@ class ReportConfig:
     run_dir: str | None = None
     # More run folders to compare against (e.g. the uniform and ablation arms).
     compare: list[str] = field(default_factory=list)
+    # A Uniform run on the same tasks: the break-even rollout cost c* against it, in plain words.
+    compare_to: str | None = None
     output_dir: str | None = None

@@ -5,7 +5,8 @@
 - demo allocation per task per round, and the evaluation cost from the ledger;
 - what each round cost per task (demonstrations, corrections, expert frames, evaluation episodes and steps) and
   success against each of these, added over the rounds (a person on a robot pays in expert time and episodes,
-  not in demonstrations).
+  not in demonstrations: `costs.py`), and, against a Uniform run (`--compare_to`), the break-even rollout
+  cost.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from adademo_lerobot.configs import ReportConfig
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.ledger import read_ledger
+from adademo_lerobot.report_costs import COSTS, break_even_summary, cost_lines, cost_rows, cost_table
 from adademo_lerobot.tables import table
 
 
@@ -36,27 +38,19 @@ class RunResults:
     run_dir: Path | None = None
     dataset_root: Path | None = None
     base_round: int = 0
+    costs: pd.DataFrame | None = None  # per ledger row (round, task): COSTS
 
-    def added_cost(self) -> pd.DataFrame:
-        """Per round (rows, from 0), what the expansion rounds added up to then, per task on average."""
+    def added_cost(self, per_task: bool = True) -> pd.DataFrame:
+        """Per round (rows, from 0), what the expansion rounds added up to then, per task on average (or in
+        all); episodes = expert episodes + rollouts, at the bounds of expert episodes where not exact."""
         rounds = list(self.success.columns)
-        out = pd.DataFrame(0.0, index=rounds, columns=list(COSTS))
-        if len(self.ledger):
-            ledger = self.ledger.reindex(columns=[*COSTS.values(), "round"], fill_value=0)
-            per_round = ledger.groupby("round")[list(COSTS.values())].sum() / len(self.tasks)
-            per_round.columns = list(COSTS)
+        out = pd.DataFrame(0.0, index=rounds, columns=COSTS)
+        if self.costs is not None and len(self.costs):
+            per_round = self.costs.groupby("round")[COSTS].sum() / (len(self.tasks) if per_task else 1)
             out = per_round.reindex(rounds, fill_value=0.0).cumsum()
-        out["episodes"] = out["demonstrations"] + out["evaluation episodes"]
+        out["episodes"] = out["expert episodes"] + out["rollouts"]
+        out["episodes high"] = out["expert episodes high"] + out["rollouts"]
         return out
-
-
-# Cost measures: name -> ledger column (summed over tasks, per round).
-COSTS = {
-    "demonstrations": "demos_added",
-    "expert frames": "collection_env_steps",
-    "evaluation episodes": "eval_episodes_run",
-    "evaluation steps": "eval_env_steps",
-}
 
 
 def describe_start(begun: dict) -> str:
@@ -98,9 +92,12 @@ def load_run(run_dir: Path) -> RunResults:
         },
         index=tasks,
     )
-    ledger = pd.DataFrame(read_ledger(dataset_root))
+    rows = [r for r in read_ledger(dataset_root) if r["round"] > base]
+    kept = eps.groupby(["task", "adademo/round"])["length"].sum()
+    spent = cost_rows(rows, settings, kept).assign(round=lambda d: d["round"] - base)
+    ledger = pd.DataFrame(rows)
     if len(ledger):
-        ledger = ledger[ledger["round"] > base].assign(round=lambda d: d["round"] - base)
+        ledger = ledger.assign(round=lambda d: d["round"] - base)
     corrections = " + takeover corrections" if settings.get("demo_start") == "takeover" else ""
     strategy = settings["strategy"]  # its config (a name in runs of release 0.2)
     name = strategy["type"] if isinstance(strategy, dict) else strategy
@@ -116,6 +113,7 @@ def load_run(run_dir: Path) -> RunResults:
         run_dir,
         dataset_root,
         base,
+        spent,
     )
 
 
@@ -185,50 +183,28 @@ def markdown_tables(run: RunResults) -> str:
     return "\n".join(lines)
 
 
-def cost_lines(run: RunResults, ledger: pd.DataFrame) -> list[str]:
-    """Per round and task, what the round cost: demos (of which corrections), expert frames, evaluation."""
-    rows = [
-        [
-            r["round"],
-            r["task"],
-            r["demos_added"],
-            int(r["corrections"]),
-            r["collection_env_steps"],
-            int(r["demo_frames"]),
-            r.get("eval_episodes_run", r["eval_episodes"]),
-            r["eval_env_steps"],
-        ]
-        for _, r in ledger.iterrows()
-    ]
-    added = run.added_cost()
-    totals = [
-        [r, *(f"{added.loc[r, c]:.1f}" for c in [*COSTS, "episodes"]), _pct(run.success.loc["average", r])]
-        for r in added.index
-    ]
-    return [
-        "",
-        "Cost per round and task (expert frames: env steps under the expert's control, failed attempts "
-        "included; demo frames: the frames kept; evaluation: every policy episode the round ran):",
-        "",
-        table(
-            [
-                "round",
-                "task",
-                "demos",
-                "corrections",
-                "expert frames",
-                "demo frames",
-                "eval episodes",
-                "eval steps",
-            ],
-            rows,
-            aligned=False,
-        ),
-        "",
-        "Added per task over the rounds (episodes: demonstrations + evaluation episodes), and the average success:",
-        "",
-        table(["after round", *COSTS, "episodes", "avg SR %"], totals, aligned=False),
-    ]
+def load_uniform(path: Path, run: RunResults) -> RunResults:
+    """The Uniform run to read c* against: a run on the same tasks that ran no policy rollouts."""
+    state = path / "run_state.json"
+    if not state.exists():
+        raise AdaDemoError(f"--compare_to: {path} is not an adademo-run folder (no run_state.json)")
+    tasks = json.loads(state.read_text())["settings"]["suite"]["tasks"].split(",")
+    if set(tasks) != set(run.tasks):  # checked before loading: its results are of other tasks
+        raise AdaDemoError(
+            f"--compare_to: {path} ran other tasks ({','.join(tasks)}) than {run.run_dir} "
+            f"({','.join(run.tasks)}): the break-even cost compares runs on the same tasks"
+        )
+    try:
+        uniform = load_run(path)
+    except AdaDemoError as err:
+        raise AdaDemoError(f"--compare_to: {err}") from None
+    rollouts = int(uniform.costs["rollouts"].sum())
+    if rollouts:
+        raise AdaDemoError(
+            f"--compare_to: {path} ran {rollouts} policy rollouts in its expansion rounds; compare with a "
+            "Uniform run (--strategy.type=uniform), which runs none"
+        )
+    return uniform
 
 
 def failure_lines(run: RunResults, out_dir: Path) -> list[str]:
@@ -317,7 +293,7 @@ def plot_success_vs_cost(runs: list[RunResults], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("average success rate (%)")
     axes[-1].legend(fontsize=8)
-    fig.suptitle("Success against each cost (episodes: demonstrations + evaluation episodes)")
+    fig.suptitle("Success against each cost (episodes: expert episodes, kept or failed, + rollouts)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
@@ -381,7 +357,8 @@ def plot_eval_cost(runs: list[RunResults], path: Path) -> None:
     fig.savefig(path, dpi=120)
 
 
-def write_report(run_dirs: list[Path], out_dir: Path) -> Path:
+def write_report(run_dirs: list[Path], out_dir: Path, uniform: RunResults | None = None) -> Path:
+    """The report of `run_dirs` (the first with its break-even rollout cost against `uniform`, if given)."""
     runs = [load_run(Path(d)) for d in run_dirs]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -410,12 +387,13 @@ def write_report(run_dirs: list[Path], out_dir: Path) -> Path:
             table(["run", "strategy", "final avg SR %", "avg demos per task"], rows, aligned=False),
             "",
         ]
-    for run in runs:
+    for i, run in enumerate(runs):
         plot_allocation(run, out_dir / f"allocation_{run.name}.png")
         plot_per_task_success(run, out_dir / f"success_{run.name}.png")
         sections += [
             markdown_tables(run),
             "",
+            *([*break_even_summary(run, uniform), ""] if i == 0 else []),
             f"![allocation](allocation_{run.name}.png) ![per-task success](success_{run.name}.png)",
             "",
             *failure_lines(run, out_dir),
@@ -430,6 +408,11 @@ def run_report(cfg: ReportConfig) -> Path:
     if cfg.run_dir is None:
         raise AdaDemoError("--run_dir is required")
     out = Path(cfg.output_dir) if cfg.output_dir else Path(cfg.run_dir) / "report"
-    path = write_report([Path(cfg.run_dir), *map(Path, cfg.compare)], out)
+    run = load_run(Path(cfg.run_dir))
+    # A bad --compare_to is refused before anything is written (getattr: ReportConfig's field, configs.py).
+    compare_to = getattr(cfg, "compare_to", None)
+    uniform = load_uniform(Path(compare_to), run) if compare_to else None
+    path = write_report([Path(cfg.run_dir), *map(Path, cfg.compare)], out, uniform)
+    print("\n".join([*cost_table(run), "", *break_even_summary(run, uniform)]))
     print(f"report: {path}")
     return path

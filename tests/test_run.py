@@ -69,6 +69,64 @@ def test_tiny_recipe_end_to_end_with_report(tmp_path):
         "| adademo | adademo + trajectory sampler |" in compared
         and "| uniform | uniform + task sampler |" in compared
     )
+    # Without --compare_to: one line on how to get the break-even cost.
+    assert "add `--compare_to=<a Uniform run on the same tasks>`" in compared
+
+    # The break-even rollout cost against the Uniform run, from both runs' ledgers.
+    proc = run_cli("adademo-report", f"--run_dir={run_dir}", f"--compare_to={uniform}", f"--output_dir={out}")
+    assert_break_even(proc.stdout, run_dir, uniform)
+    assert_break_even((out / "report.md").read_text(), run_dir, uniform)
+    assert_cli_error(
+        "adademo-report",
+        f"--run_dir={run_dir}",
+        f"--compare_to={tmp_path}",
+        match="not an adademo-run folder",
+    )
+    other = tmp_path / "other_tasks"  # a run on other tasks (its state says so; refused before its results)
+    other.mkdir()
+    state = json.loads((uniform / "run_state.json").read_text())
+    state["settings"]["suite"]["tasks"] = "reach-v3"
+    (other / "run_state.json").write_text(json.dumps(state))
+    assert_cli_error(
+        "adademo-report", f"--run_dir={run_dir}", f"--compare_to={other}", match="ran other tasks"
+    )
+    assert_cli_error(  # a run that ran rollouts is no Uniform run: c* is defined against one that runs none
+        "adademo-report", f"--run_dir={uniform}", f"--compare_to={run_dir}", match="ran 4 policy rollouts"
+    )
+
+
+def assert_break_even(text: str, run_dir, uniform) -> None:
+    """The plain-words c*, recomputed here from the ledgers (every failed attempt runs the 300-step limit)."""
+
+    def expert_episodes(rows) -> int:
+        return sum(r["demos_added"] + (r["collection_env_steps"] - r["demo_frames"]) // 300 for r in rows)
+
+    def average(run, r: int) -> float:
+        summary = json.loads((run / "eval" / f"round-{r:03d}" / "eval_summary.json").read_text())
+        return next(row["success_rate"] for row in summary["per_task"] if row["task"] == "average")
+
+    mine, theirs = read_ledger(run_dir / "dataset"), read_ledger(uniform / "dataset")
+    target = average(uniform, 1)
+    used = f"Uniform used {expert_episodes(theirs)} expert episodes"
+    reached = [r for r in (0, 1) if average(run_dir, r) >= target]
+    assert "| after round | demonstrations | expert frames | expert episodes | rollouts | episodes |" in text
+    if not reached:
+        assert f"This run never reached the Uniform run's final {100 * target:.1f} %" in text and used in text
+        return
+    spent = [r for r in mine if r["round"] <= reached[0]]
+    x, n = expert_episodes(spent), sum(r["eval_episodes_run"] for r in spent)
+    c = (expert_episodes(theirs) - x) / n if n else None
+    words = (
+        "pays off whatever a policy rollout costs"
+        if c is None
+        else "does not pay off even with free rollouts"
+        if c < 0
+        else f"pays off if a policy rollout costs less than {c:.2f} of an expert episode"
+    )
+    assert (
+        f"On this run AdaDemo {words} (it reached the Uniform run's final {100 * target:.1f} % with round "
+        f"{reached[0]}'s policy, after {x} expert episodes and {n} rollouts; {used})."
+    ) in text
 
 
 def training_step(run_dir, i: int) -> int:

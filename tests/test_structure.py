@@ -29,6 +29,7 @@ LAYERS = [
     ("adademo_lerobot.tables", 0),
     ("adademo_lerobot.patching", 0),
     ("adademo_lerobot.dataset.layout", 0),
+    ("adademo_lerobot.costs", 0),
     ("adademo_lerobot", 0),  # the package __init__ (the version check; it changes nothing of the process)
     # simulators and data
     ("adademo_lerobot.suites", 1),
@@ -52,6 +53,7 @@ LAYERS = [
     ("adademo_lerobot.expand", 4),
     ("adademo_lerobot.train", 4),
     ("adademo_lerobot.report", 4),
+    ("adademo_lerobot.report_costs", 4),
     ("adademo_lerobot.failure_map", 4),
     ("adademo_lerobot.hub", 4),
     ("adademo_lerobot.record", 4),
