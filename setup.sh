@@ -11,9 +11,11 @@ cd "$(dirname "$0")"
 VENV="${ADADEMO_VENV:-$HOME/.venvs/adademo-lerobot}"
 LOCK=requirements.lock
 EXTRAS="test,ray,robot,so101"
-# This checkout and its LeRobot plugin distributions (plugins/*: LeRobot finds them by their names), editable.
+# This checkout and its LeRobot plugin distributions (plugins/*: LeRobot finds them by their names), editable; and
+# the example env plugin of docs/lerobot-env.md with its broken variants (examples/lerobot_env_*: its tests run
+# them). None of them is in the lock.
 EDITABLES=(-e ".[$EXTRAS]")
-for plugin in plugins/*/; do EDITABLES+=(-e "$plugin"); done
+for plugin in plugins/*/ examples/lerobot_env_*/; do EDITABLES+=(-e "$plugin"); done
 # This machine's pip configuration may name local package folders that do not exist; pip warns about each.
 pip_quiet() { "$@" 2> >(grep -v "^WARNING: Location 'file://" >&2); }
 
@@ -56,7 +58,7 @@ install_system_packages() {
 
 lock_lines() { grep -v -E '^\s*(#|$)' "$LOCK" | sed 's/\s*#.*//' | tr '[:upper:]_' '[:lower:]-' | sort; }
 installed_lines() {
-  "$VENV/bin/python" -m pip freeze --all --exclude-editable 2>/dev/null | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo)' \
+  "$VENV/bin/python" -m pip freeze --all --exclude-editable 2>/dev/null | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example)' \
     | tr '[:upper:]_' '[:lower:]-' | sort
 }
 
@@ -76,8 +78,11 @@ install_venv() {
     pip_quiet "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -r "$LOCK" \
       || die "pip could not install $LOCK into $VENV; see pip's output above"
   fi
+  # Reinstalled when this checkout or one of its plugin/example distributions is missing (or is another checkout's).
+  local modules; modules=$(for d in plugins/*/ examples/lerobot_env_*/; do basename "$d"; done | paste -sd,)
   if ! "$VENV/bin/python" -m pip show --quiet adademo-lerobot >/dev/null 2>&1 \
-      || [ "$("$VENV/bin/python" -P -c 'import adademo_lerobot, os; print(os.path.dirname(os.path.dirname(adademo_lerobot.__file__)))' 2>/dev/null)" != "$PWD" ]; then
+      || [ "$("$VENV/bin/python" -P -c 'import adademo_lerobot, os; print(os.path.dirname(os.path.dirname(adademo_lerobot.__file__)))' 2>/dev/null)" != "$PWD" ] \
+      || ! "$VENV/bin/python" -P -c "import importlib.util, sys; sys.exit(any(importlib.util.find_spec(m) is None for m in '$modules'.split(',')))" 2>/dev/null; then
     pip_quiet "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation "${EDITABLES[@]}" \
       || die "pip could not install this checkout into $VENV; see pip's output above"
   fi
@@ -103,7 +108,7 @@ refresh_lock() {
     echo "# The whole resolved package set for adademo-lerobot (with extras [$EXTRAS]); setup.sh and CI install exactly this."
     echo "# Resolved $(date -u +%Y-%m-%d) on $(uname -m) Linux, $("$tmp/venv/bin/python" -V). Refresh deliberately:"
     echo "# bash setup.sh lock, then check the new set with bash setup.sh test and bash setup.sh quickstart (README)."
-    "$tmp/venv/bin/python" -m pip freeze --all --exclude-editable | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo)'
+    "$tmp/venv/bin/python" -m pip freeze --all --exclude-editable | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example)'
   } > "$LOCK.new"
   if [ -f "$LOCK" ]; then diff <(grep -v '^#' "$LOCK") <(grep -v '^#' "$LOCK.new") || true; fi
   mv "$LOCK.new" "$LOCK"

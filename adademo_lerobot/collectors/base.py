@@ -25,7 +25,7 @@ from adademo_lerobot.takeover import TakeoverArgs
 
 @dataclass
 class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
-    """Which expert records the demonstrations (`--collector.type=scripted|policy`); each config builds its
+    """Which expert records the demonstrations (`--collector.type=scripted|policy|callable`); each config builds its
     own collector for a suite."""
 
     max_attempts: int = 3

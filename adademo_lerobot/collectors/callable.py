@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -26,6 +27,10 @@ class CallableCollectorConfig(CollectorConfig):
     """A controller from an env's package: `package.module:factory`, factory(env) -> (observation -> action)."""
 
     entry: str | None = None
+    # For the messages that list the experts a suite can use.
+    expert_hint: ClassVar[str] = (
+        "your own expert function, --collector.entry=package.module:factory: docs/lerobot-env.md"
+    )
 
     def build(self, suite: TaskSuite) -> ExpertCollector:
         return CallableExpert(suite, self)

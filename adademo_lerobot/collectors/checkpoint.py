@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -36,6 +37,8 @@ class PolicyCollectorConfig(CollectorConfig):
 
     path: str | None = None
     device: str = "cpu"
+    # For the messages that list the experts a suite can use.
+    expert_hint: ClassVar[str] = "a trained policy as the expert, --collector.path=CHECKPOINT"
 
     def build(self, suite: TaskSuite) -> ExpertCollector:
         return CheckpointExpert(suite, self)

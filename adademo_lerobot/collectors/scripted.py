@@ -32,5 +32,15 @@ class ScriptedCollectorConfig(CollectorConfig):
 
     def expert_class(self, suite: TaskSuite) -> type:
         if suite.name not in SCRIPTED_EXPERTS:
-            raise AdaDemoError(f"no scripted expert for suite {suite.name!r}; use --collector.type=policy")
+            others = [  # every other registered expert type, so that a new one is named here too
+                f"--collector.type={name}"
+                + (f" ({cls.expert_hint})" if getattr(cls, "expert_hint", "") else "")
+                for name, cls in sorted(CollectorConfig.get_known_choices().items())
+                if cls is not type(self)
+            ]
+            raise AdaDemoError(
+                f"no scripted expert for suite {suite.name!r} (only for {', '.join(SCRIPTED_EXPERTS)}); use "
+                f"{' or '.join(others)}; a dataset keeps its suite but not its expert, so name the expert with "
+                "--collector.* (or collector: in the recipe)"
+            )
         return SCRIPTED_EXPERTS[suite.name]

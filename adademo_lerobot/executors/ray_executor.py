@@ -4,40 +4,170 @@ Each actor is an `EpisodeWorker`: it builds the suite's envs and the expert once
 Units of work go to the actor with the fewest unfinished units. Ray restarts an actor whose process dies
 (`kill -9`) and runs its unfinished units again (`max_restarts`, `max_task_retries`), so a round completes
 with nothing lost or duplicated: units are deterministic, and the caller records each result once.
+
+What Ray cannot replace ends the command within seconds with `LostRayClusterError` (one `error:` line; the rerun
+resumes from the journal): a cluster whose GCS stops accepting connections (the head node, or a local Ray's
+node, is gone), alive nodes without room left for every actor (a lost worker node), or an actor Ray gave up on.
+Left to itself, Ray's driver would wait a minute for the GCS and then end with its own log line.
 """
 
 from __future__ import annotations
 
+import math
 import os
+import socket
 import threading
+import time
 
 from adademo_lerobot.collectors import CollectorConfig
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.errors import AdaDemoError, LostRayClusterError
 from adademo_lerobot.executors import RayArgs
 from adademo_lerobot.executors.worker import EpisodeWorker
 from adademo_lerobot.suites import TaskSuite
 from adademo_lerobot.takeover import TakeoverArgs
 
+# Results are waited for in slices of this length; the cluster's health is checked at most this often, and no
+# check waits longer than this (a GCS client call would otherwise retry for a minute when the GCS is gone).
+WAIT_SLICE_S = 1.0
+# A failed check is a lost cluster once checks have kept failing this long (not a blip of a busy machine).
+CONFIRM_S = 2.0
 
-def ray_get(refs):
-    """`ray.get`, with bad input found on a worker raised as the same one-line error as locally."""
-    import ray
 
-    try:
-        return ray.get(refs)
-    except ray.exceptions.RayTaskError as err:
-        cause = getattr(err, "cause", None)
-        if isinstance(cause, AdaDemoError):
-            raise cause from None
-        raise
+class ClusterWatch:
+    """Reads results (`get`) while it checks, about once a second, that the cluster can still deliver them."""
+
+    def __init__(self, args: RayArgs):
+        import ray
+
+        try:
+            self.gcs_address = ray.get_runtime_context().gcs_address
+            host, _, port = self.gcs_address.rpartition(":")
+            self._gcs: tuple[str, int] | None = (host.strip("[]"), int(port))
+        except Exception:  # no GCS address here (Ray Client): results are waited for without the checks
+            self.gcs_address, self._gcs = "unknown", None
+        self._workers = args.num_workers
+        self._per_worker = {"CPU": args.num_cpus_per_worker, "GPU": args.num_gpus_per_worker}
+        self._per_worker = {k: v for k, v in self._per_worker.items() if v > 0}
+        self._lock = threading.Lock()
+        self._next_check = 0.0
+        self._failing_since: float | None = None
+        self._read_nodes = True
+        # The most actors the cluster had room for: less room than that (and than needed) means a lost node.
+        self._most_room = self._room() or 0
+        self.lost: str | None = None  # what was seen, once the cluster is taken for lost
+
+    def error(self) -> LostRayClusterError:
+        return LostRayClusterError(
+            f"lost the Ray cluster ({self.lost}): every committed demonstration is in the dataset; "
+            "run the same command to resume"
+        )
+
+    def get(self, refs):
+        """`ray.get(refs)` that raises `LostRayClusterError` within seconds when the cluster is gone."""
+        import ray
+
+        waiting = list(refs) if isinstance(refs, list) else [refs]
+        while True:
+            self.check()
+            if self.lost is not None:
+                raise self.error()
+            if waiting:
+                _, waiting = ray.wait(waiting, num_returns=len(waiting), timeout=WAIT_SLICE_S)
+            if not waiting:
+                return self._get(refs)
+
+    def _get(self, refs):
+        """`ray.get`, with bad input found on a worker raised as the same one-line error as locally."""
+        import ray
+        from ray import exceptions as rex
+
+        try:
+            return ray.get(refs)
+        except rex.RayTaskError as err:
+            cause = getattr(err, "cause", None)
+            if isinstance(cause, AdaDemoError):
+                raise cause from None
+            raise
+        except (rex.RayActorError, rex.LocalRayletDiedError, rex.NodeDiedError, rex.ObjectLostError) as err:
+            if isinstance(err, rex.RayActorError) and err.actor_init_failed:
+                raise  # the worker's code failed, not the machine
+            # With unlimited restarts and retries, Ray only gives up on a worker it cannot bring back.
+            self.lost = self.lost or f"Ray gave up on a worker: {str(err).strip().splitlines()[0][:160]}"
+            raise self.error() from None
+
+    def check(self) -> None:
+        """Look at the cluster if a check is due (one thread at a time; the others keep waiting)."""
+        if time.monotonic() < self._next_check or not self._lock.acquire(blocking=False):
+            return
+        try:
+            problem = self.problem()
+            now = time.monotonic()
+            self._next_check = now + WAIT_SLICE_S
+            if problem is None:
+                self._failing_since = None
+            elif self._failing_since is None:
+                self._failing_since = now
+            elif now - self._failing_since >= CONFIRM_S and self.lost is None:
+                self.lost = f"{problem}; seen for {now - self._failing_since:.0f} s"
+        finally:
+            self._lock.release()
+
+    def problem(self) -> str | None:
+        """What is wrong with the cluster now, or None; takes at most 2 * WAIT_SLICE_S."""
+        refused = self.gcs_refuses()
+        if refused is not None:
+            return refused
+        room = self._room()
+        if room is not None:
+            self._most_room = max(self._most_room, room)
+            if room < self._workers and room < self._most_room:
+                need = ", ".join(f"{v:g} {k}" for k, v in self._per_worker.items())
+                return f"its alive nodes have room for {room} of the {self._workers} workers ({need} each)"
+        return None
+
+    def gcs_refuses(self) -> str | None:
+        """Why the GCS does not accept a TCP connection, or None when it does (a connect is ~0.1 ms). The kernel
+        accepts for a live GCS however busy the machine is, so this does not mistake load for a loss."""
+        if self._gcs is None:
+            return None
+        try:
+            socket.create_connection(self._gcs, timeout=WAIT_SLICE_S).close()
+        except OSError as err:
+            why = err.strerror or str(err) or type(err).__name__
+            return f"its GCS at {self.gcs_address} does not accept connections: {why}"
+        return None
+
+    def _room(self) -> int | None:
+        """How many actors the alive nodes can hold at once; None when the GCS does not say within the slice (a
+        GCS that is gone fails the connection check; a slow one is not a lost one)."""
+        if not self._read_nodes or self._gcs is None:
+            return None
+        import ray
+
+        try:
+            from ray.core.generated.gcs_pb2 import GcsNodeInfo
+
+            client = ray._private.worker.global_worker.gcs_client
+            nodes = client.get_all_node_info(
+                timeout=WAIT_SLICE_S, state_filter=GcsNodeInfo.GcsNodeState.ALIVE
+            ).values()
+        except ray.exceptions.RpcError:
+            return None
+        except Exception:  # private API of another Ray version: the connection check alone
+            self._read_nodes = False
+            return None
+        return sum(
+            min(math.floor(n.resources_total.get(k, 0.0) / v + 1e-9) for k, v in self._per_worker.items())
+            for n in nodes
+        )
 
 
 class RayPending:
-    def __init__(self, ref):
-        self.ref = ref
+    def __init__(self, ref, watch: ClusterWatch):
+        self.ref, self._watch = ref, watch
 
     def result(self):
-        return ray_get(self.ref)
+        return self._watch.get(self.ref)
 
 
 class RayExecutor:
@@ -65,6 +195,7 @@ class RayExecutor:
                 raise AdaDemoError(
                     f"cannot start or reach {where}: {' '.join(str(err).split())[:200]}"
                 ) from None
+        self._watch = ClusterWatch(args)
         threads = max(1, int(args.num_cpus_per_worker))
         actor = ray.remote(EpisodeWorker).options(
             num_cpus=args.num_cpus_per_worker,
@@ -92,16 +223,18 @@ class RayExecutor:
         return min(range(len(self.actors)), key=lambda i: len(self._inflight[i]))
 
     def _submit(self, method: str, *args) -> RayPending:
+        if self._watch.lost is not None:  # no new work for a cluster that is gone
+            raise self._watch.error()
         with self._lock:  # the tasks' loops submit from their own threads
             i = self._least_loaded()
             ref = getattr(self.actors[i], method).remote(*args)
             self._inflight[i].append(ref)
-        return RayPending(ref)
+        return RayPending(ref, self._watch)
 
     def use_policy(self, path: str | None) -> None:
         """Every worker loads the round's policy now, in parallel (and again by itself after a restart)."""
         self._policy = str(path) if path else None
-        ray_get([a.use_policy.remote(self._policy) for a in self.actors])
+        self._watch.get([a.use_policy.remote(self._policy) for a in self.actors])
 
     def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> RayPending:
         return self._submit("evaluate", task, list(seeds), self._policy, takeover)
@@ -116,13 +249,15 @@ class RayExecutor:
         return self._submit("collect", task, seed, start_state, takeover)
 
     def worker_pids(self) -> list[int]:
-        import ray
-
-        return ray.get([a.pid.remote() for a in self.actors])
+        return self._watch.get([a.pid.remote() for a in self.actors])
 
     def close(self) -> None:
         import ray
 
+        if self._watch.gcs_refuses() is not None:
+            # The GCS is gone: ray.kill and ray.shutdown would wait for it. A command that lost its cluster leaves
+            # at once (LostRayClusterError); what a local Ray left running dies with this process (fate sharing).
+            return
         for a in self.actors:
             ray.kill(a)
         if self._started_ray:

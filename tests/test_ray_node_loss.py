@@ -1,0 +1,145 @@
+"""`--executor=ray` when the Ray node dies mid-round: every process of the command's local Ray (raylet, GCS,
+actors, agents) is killed while the actors collect. The command must end within seconds (not after Ray's minute
+of waiting for its GCS) with one `error:` line, leave a dataset stock LeRobot opens with exactly the committed
+episodes, and the same command must then finish the round as an untouched one would."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+from conftest import BIN, run_cli
+from test_executors import same_round
+
+from adademo_lerobot.dataset.layout import TXN_FILE
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.ledger import read_ledger
+
+psutil = pytest.importorskip("psutil")
+pytest.importorskip("ray")
+
+
+def ray_processes(command: psutil.Process, temp_dir: str) -> list[psutil.Process]:
+    """The local Ray node of `command`: its descendants that are Ray's, and any process of its session."""
+    found = {}
+    for p in command.children(recursive=True):
+        try:
+            if "ray" in " ".join(p.cmdline()) or p.name().startswith("ray::"):
+                found[p.pid] = p
+        except psutil.Error:
+            pass
+    for p in psutil.process_iter(["cmdline"]):
+        if p.pid != command.pid and any(temp_dir in arg for arg in p.info["cmdline"] or ()):
+            found[p.pid] = p
+    return list(found.values())
+
+
+def kill_node(command: psutil.Process, temp_dir: str) -> int:
+    """SIGKILL every process of the node (again, for a worker the raylet started meanwhile); the count."""
+    killed = set()
+    for _ in range(3):
+        victims = [p for p in ray_processes(command, temp_dir) if p.pid not in killed]
+        if not victims:
+            break
+        for p in victims:
+            try:
+                p.send_signal(signal.SIGKILL)
+                killed.add(p.pid)
+            except psutil.Error:
+                pass
+        time.sleep(0.2)
+    return len(killed)
+
+
+@pytest.mark.slow
+def test_a_lost_ray_node_ends_the_command_in_seconds_and_the_same_command_finishes_the_round(
+    reach_push_dataset, act_run, tmp_path
+):
+    # A temp dir of its own (short: Ray's socket paths must fit 107 bytes) names the session's processes.
+    temp_dir = tempfile.mkdtemp(prefix="adademo-ray-")
+    try:
+        lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, temp_dir)
+    finally:
+        shutil.rmtree(temp_dir, ignore_errors=True)
+
+
+def lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, temp_dir: str) -> None:
+    ckpt = act_run / "checkpoints" / "last" / "pretrained_model"
+    root, reference = tmp_path / "lost", tmp_path / "reference"
+    shutil.copytree(reach_push_dataset, root)
+    shutil.copytree(reach_push_dataset, reference)
+
+    def expand_args(dataset: Path) -> list[str]:
+        return [
+            "--dataset.repo_id=local/demo",
+            f"--dataset.root={dataset}",
+            f"--policy.path={ckpt}",
+            "--strategy.type=adademo",
+            "--strategy.target_successes=2",
+            "--strategy.max_demos_per_task=6",
+            "--eval.batch_size=3",
+            "--commit_every=1",
+        ]
+
+    args = [*expand_args(root), "--executor=ray", "--ray.num_workers=2"]
+    env = {**os.environ, "RAY_TMPDIR": temp_dir, "RAY_USAGE_STATS_ENABLED": "0"}
+    episodes_dir = root / "meta" / "episodes"
+    files_before = len(list(episodes_dir.rglob("*.parquet")))
+    before = read_episode_metadata(root)
+    stderr_path = tmp_path / "stderr.txt"
+    proc = None
+    try:
+        with stderr_path.open("w") as stderr:
+            proc = subprocess.Popen(
+                [str(BIN / "adademo-expand"), *args], stdout=subprocess.DEVNULL, stderr=stderr, env=env
+            )
+            command = psutil.Process(proc.pid)
+            deadline = time.time() + 300
+            # A commit done (a second begun) while the actors still have the round's work.
+            while len(list(episodes_dir.rglob("*.parquet"))) < files_before + 2:
+                assert time.time() < deadline and proc.poll() is None, (
+                    "expand ended before it could be killed"
+                )
+                time.sleep(0.05)
+            assert any(p.name().startswith("ray::EpisodeWorker") for p in ray_processes(command, temp_dir))
+            killed_at = time.time()
+            assert kill_node(command, temp_dir) >= 4  # GCS, raylet, the two actors, and Ray's helpers
+            proc.wait(timeout=120)
+            took = time.time() - killed_at
+        err = stderr_path.read_text()
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert proc.returncode == 1, err[-3000:]
+        assert took < 20, f"the command took {took:.1f} s to end after the kill"
+        assert lines[-1].startswith("error: lost the Ray cluster"), err[-3000:]
+        assert "run the same command" in lines[-1] and "Traceback" not in err
+        print(f"ended {took:.1f} s after the kill: {lines[-1]}")
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+
+    # The dataset is as the last commit left it: no write half done, stock LeRobot reads every episode.
+    assert not (root / TXN_FILE).exists()  # the command let a commit in progress finish before it left
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    committed = read_episode_metadata(root)
+    assert LeRobotDataset("local/demo", root=root).num_episodes == len(committed) > len(before)
+    kept = set(zip(committed.task, committed["adademo/seed"], strict=True))
+
+    # The same command finishes the round: what an untouched round gives, with nothing lost or twice.
+    rerun = subprocess.run(
+        [str(BIN / "adademo-expand"), *args], capture_output=True, text=True, timeout=600, env=env
+    )
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    eps = read_episode_metadata(root)
+    assert kept <= set(zip(eps.task, eps["adademo/seed"], strict=True))
+    new = eps[eps["adademo/round"] == 1]
+    assert not new.duplicated(["task", "adademo/seed"]).any()  # no initial state twice
+    assert sorted({r["round"] for r in read_ledger(root)}) == [1]
+    run_cli("adademo-expand", *expand_args(reference))
+    same_round(reference, root, 1)
