@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import errno
-import inspect
 import json
 import logging
 import os
@@ -26,6 +25,7 @@ from lerobot.configs.train import TrainPipelineConfig
 from lerobot.configs.types import NormalizationMode
 from tqdm import tqdm
 
+from adademo_lerobot import lerobot_training
 from adademo_lerobot.configs import TrainCommandFlags
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.metadata import read_episode_metadata, try_load_suite_config
@@ -50,6 +50,7 @@ NOT_IMPLEMENTED = (
     "env", "reward_model", "peft", "sample_weighting", "eval", "eval_steps", "max_eval_samples",
     "save_checkpoint", "save_checkpoint_to_hub", "rename_map", "job",
     "dataset.episodes", "dataset.streaming", "dataset.eval_split", "dataset.repo_type",
+    *lerobot_training.NEWER_UNIMPLEMENTED_FLAGS,  # LeRobot main's --parallelism.*, --accelerator.*, ...
 )  # fmt: skip
 
 
@@ -191,18 +192,14 @@ def save_whole_checkpoint(
 ) -> None:
     """LeRobot's checkpoint, written beside its final name and renamed into place, so a kill never leaves a half
     checkpoint that looks complete (LeRobot writes training_step.json before the RNG and optimizer state)."""
-    from lerobot.common.train_utils import get_step_checkpoint_dir, save_checkpoint, update_last_checkpoint
+    from lerobot.common.train_utils import get_step_checkpoint_dir, update_last_checkpoint
 
     checkpoint_dir = get_step_checkpoint_dir(cfg.output_dir, cfg.steps, step)
     partial = checkpoint_dir.with_name(checkpoint_dir.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
-    # LeRobot 0.6.1 records the process count and batch size in the training state; its next release no longer
-    # takes them: pass them only where they are accepted.
-    accepted = inspect.signature(save_checkpoint).parameters
-    extra = {k: v for k, v in {"num_processes": n, "batch_size": cfg.batch_size}.items() if k in accepted}
     try:
-        save_checkpoint(
-            partial, step, cfg, policy, optimizer, lr_scheduler, preprocessor, postprocessor, **extra
+        lerobot_training.save_checkpoint(
+            partial, step, cfg, policy, optimizer, lr_scheduler, preprocessor, postprocessor, n
         )
         (partial / "pretrained_model" / ADADEMO_TRAIN_INFO).write_text(json.dumps(info, indent=2))
     except BaseException as err:  # a full disk: no half checkpoint left, `last` still names the previous one
@@ -232,7 +229,6 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     checkpoints. Ours are the weighted loader (principle C) and the few lines of loop around `update_policy`."""
     from accelerate import Accelerator
     from accelerate.utils import DistributedDataParallelKwargs
-    from lerobot.common.train_utils import load_training_state
     from lerobot.datasets.factory import make_dataset
     from lerobot.optim.factory import make_optimizer_and_scheduler
     from lerobot.utils.random_utils import set_seed
@@ -255,9 +251,8 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     dataset = make_dataset(cfg)
     policy, preprocessor, postprocessor = build_policy(cfg, dataset)
     optimizer, lr_scheduler = make_optimizer_and_scheduler(cfg, policy)
-    step = 0
-    if cfg.resume:
-        step, optimizer, lr_scheduler = load_training_state(cfg.checkpoint_path, optimizer, lr_scheduler)
+    # LeRobot's resume in its own two phases around `accelerator.prepare` (lerobot_training.py: 0.6.1 or main).
+    step = lerobot_training.resume_before_prepare(cfg, optimizer, lr_scheduler) if cfg.resume else 0
     if step >= cfg.steps:
         log.info("training already finished at step %d (%s)", step, cfg.output_dir)
         return cfg.output_dir / "checkpoints" / "last" / "pretrained_model"
@@ -270,6 +265,8 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     policy, optimizer, dataloader, lr_scheduler = accelerator.prepare(
         policy, optimizer, dataloader, lr_scheduler
     )
+    if cfg.resume:
+        lerobot_training.resume_after_prepare(cfg, accelerator, policy, optimizer, lr_scheduler)
     suite_cfg = try_load_suite_config(
         root
     )  # training needs only LeRobot's format; the suite is recorded if known
@@ -363,7 +360,7 @@ def training_loop(
 ) -> Path:
     """lerobot-train's loop around `update_policy` (metrics, wandb, checkpoints), for our loader."""
     from lerobot.scripts.lerobot_train import update_policy
-    from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
+    from lerobot.utils.logging_utils import AverageMeter
 
     policy, optimizer, lr_scheduler, preprocessor, postprocessor = parts
     metrics = {
@@ -373,13 +370,8 @@ def training_loop(
         "update_s": AverageMeter("updt_s", ":.3f"),
         "dataloading_s": AverageMeter("data_s", ":.3f"),
     }
-    tracker = MetricsTracker(
-        cfg.batch_size,
-        dataset.num_frames,
-        dataset.num_episodes,
-        metrics,
-        initial_step=step,
-        accelerator=accelerator,
+    tracker = lerobot_training.metrics_tracker(
+        cfg.batch_size, dataset.num_frames, dataset.num_episodes, metrics, step, accelerator
     )
     wandb_logger = None
     if cfg.wandb.enable and cfg.wandb.project and accelerator.is_main_process:

@@ -11,7 +11,7 @@ from importlib import metadata
 
 PYTHON_MIN = (3, 12)
 LEROBOT_MIN = (0, 6, 1)
-LEROBOT_BELOW = (0, 7)
+LEROBOT_BELOW = (0, 6, 3)  # 0.6.2: LeRobot main as checked (pyproject.toml)
 
 
 class UnsupportedEnvironmentError(ImportError):
@@ -41,5 +41,5 @@ def check_supported_versions() -> None:
         raise UnsupportedEnvironmentError(
             f"adademo-lerobot needs LeRobot >= {'.'.join(map(str, LEROBOT_MIN))}, < "
             f"{'.'.join(map(str, LEROBOT_BELOW))}; this environment has lerobot {found}: "
-            f"`pip install 'lerobot[dataset,training,metaworld]>=0.6.1,<0.7'`, or {fix}"
+            f"`pip install 'lerobot[dataset,training,metaworld]>=0.6.1,<0.6.3'`, or {fix}"
         )

@@ -202,3 +202,116 @@ def test_lerobot_aggregate_keeps_the_rounds_and_the_result_expands(two_datasets,
         eps["adademo/initial_state"].iloc[6], read_episode_metadata(b)["adademo/initial_state"].iloc[0]
     )
     check_expands_and_opens(out, "local/aggregated", ["reach-v3", "push-v3"])
+
+
+def test_the_training_api_detected_is_the_installed_lerobots_and_a_checkpoint_resumes_exactly(tmp_path):
+    """lerobot_training picks LeRobot 0.6.1's save/resume or LeRobot main's (PR #4010) by what is installed; a
+    checkpoint written through it (as adademo-train writes it) resumes to the same step, RNG, optimizer and scheduler
+    state, each loaded where adademo-train loads it (before or after `accelerator.prepare`)."""
+    import inspect
+    from importlib.metadata import version
+
+    import torch
+    from accelerate import Accelerator
+    from lerobot.common import train_utils
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.optim.factory import make_optimizer_and_scheduler
+    from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.act.modeling_act import ACTPolicy
+
+    from adademo_lerobot import lerobot_training
+    from adademo_lerobot.train import (
+        AdaDemoTrainConfig,
+        TrainDatasetConfig,
+        find_last_checkpoint,
+        save_whole_checkpoint,
+    )
+
+    # Told apart by LeRobot's own signatures, not by the detection's test.
+    new_api = "accelerator" in inspect.signature(train_utils.save_checkpoint).parameters
+    assert lerobot_training.two_phase_resume() is new_api
+    assert hasattr(train_utils, "load_training_state") is not new_api
+    if version("lerobot") == "0.6.1":  # requirements.lock's
+        assert not new_api
+
+    def setup(resume: bool):
+        policy_cfg = ACTConfig(
+            dim_model=32, dim_feedforward=64, n_heads=2, n_encoder_layers=1, n_decoder_layers=1,
+            n_vae_encoder_layers=1, chunk_size=10, n_action_steps=5, device="cpu",
+            input_features={"observation.environment_state": PolicyFeature(FeatureType.ENV, (6,))},
+            output_features={"action": PolicyFeature(FeatureType.ACTION, (4,))},
+        )  # fmt: skip
+        cfg = AdaDemoTrainConfig(
+            dataset=TrainDatasetConfig(repo_id="local/demo", root=str(tmp_path / "dataset")),
+            policy=policy_cfg,
+            output_dir=tmp_path / "run",
+            steps=10,
+            batch_size=8,
+            resume=resume,
+        )
+        cfg.optimizer = policy_cfg.get_optimizer_preset()
+        cfg.scheduler = CosineDecayWithWarmupSchedulerConfig(
+            num_warmup_steps=2, num_decay_steps=10, peak_lr=1e-3, decay_lr=1e-5
+        )
+        policy = ACTPolicy(policy_cfg)
+        return cfg, policy, *make_optimizer_and_scheduler(cfg, policy)
+
+    torch.manual_seed(0)
+    cfg, policy, optimizer, scheduler = setup(resume=False)
+    for _ in range(3):
+        for p in policy.parameters():
+            p.grad = torch.randn_like(p)
+        optimizer.step()
+        scheduler.step()
+    rng = torch.get_rng_state()
+    save_whole_checkpoint(cfg, 3, policy, optimizer, scheduler, None, None, {}, 1)
+    last = find_last_checkpoint(cfg.output_dir)
+    assert last == cfg.output_dir / "checkpoints" / "000003"
+    assert {p.name for p in (last / "training_state").iterdir()} == {
+        "optimizer_param_groups.json",
+        "optimizer_state.safetensors",
+        "rng_state.safetensors",
+        "scheduler_state.json",
+        "training_step.json",
+    }
+    step_file = json.loads((last / "training_state" / "training_step.json").read_text())
+    if new_api:
+        assert step_file["step"] == 3 and step_file["dp_world_size"] == 1 and step_file["batch_size"] == 8
+    else:
+        # As adademo-train has always written it on LeRobot 0.6.1.
+        assert step_file == {"step": 3, "num_processes": 1, "batch_size": 8}
+
+    # Another RNG state, a fresh optimizer and scheduler: all must come from the checkpoint.
+    torch.manual_seed(1)
+    cfg, policy, optimizer2, scheduler2 = setup(resume=True)
+    cfg.checkpoint_path = last
+    assert lerobot_training.resume_before_prepare(cfg, optimizer2, scheduler2) == 3
+    assert torch.equal(torch.get_rng_state(), rng)
+    accelerator = Accelerator(cpu=True, step_scheduler_with_optimizer=False)
+    policy, optimizer2, scheduler2 = accelerator.prepare(policy, optimizer2, scheduler2)
+    lerobot_training.resume_after_prepare(cfg, accelerator, policy, optimizer2, scheduler2)
+    saved, resumed = optimizer.state_dict(), optimizer2.state_dict()
+    assert saved["param_groups"] == resumed["param_groups"]
+    assert saved["state"].keys() == resumed["state"].keys()
+    for key, state in saved["state"].items():
+        for name, value in state.items():
+            assert torch.equal(value, resumed["state"][key][name]), (key, name)
+    assert scheduler2.state_dict() == scheduler.state_dict()
+    assert optimizer2.param_groups[0]["lr"] == optimizer.param_groups[0]["lr"]
+
+
+def test_lerobot_train_flags_newer_than_0_6_1_are_refused_where_installed():
+    """LeRobot main's --parallelism.*, --accelerator.*, --checkpoint_format, --ema.*, --dataset.exclude_episodes
+    would be ignored by adademo-train's loop: they are in NOT_IMPLEMENTED exactly when the installed LeRobot has
+    them."""
+    import dataclasses
+
+    from lerobot.configs.train import TrainPipelineConfig
+
+    from adademo_lerobot.lerobot_training import NEWER_UNIMPLEMENTED_FLAGS
+    from adademo_lerobot.train import NOT_IMPLEMENTED
+
+    assert set(NEWER_UNIMPLEMENTED_FLAGS) <= set(NOT_IMPLEMENTED)
+    installed = {f.name for f in dataclasses.fields(TrainPipelineConfig)}
+    assert ("parallelism" in NEWER_UNIMPLEMENTED_FLAGS) is ("parallelism" in installed)

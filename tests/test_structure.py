@@ -52,6 +52,7 @@ LAYERS = [
     ("adademo_lerobot.collect", 4),
     ("adademo_lerobot.expand", 4),
     ("adademo_lerobot.train", 4),
+    ("adademo_lerobot.lerobot_training", 4),
     ("adademo_lerobot.report", 4),
     ("adademo_lerobot.report_costs", 4),
     ("adademo_lerobot.failure_map", 4),

@@ -317,3 +317,31 @@ def test_trains_under_accelerate_launch_with_two_cpu_processes(reach_push_datase
     assert state["step"] == 6 and first_action(
         out / "checkpoints" / "last" / "pretrained_model", reach_push_dataset
     ).shape == (1, 4)
+
+
+@pytest.mark.slow
+def test_trains_and_resumes_under_torchrun_with_two_cpu_processes(reach_push_dataset, tmp_path):
+    """Two real processes (`accelerate launch --cpu` starts one), through LeRobot 0.6.1's save and resume or LeRobot
+    main's (lerobot_training.py): the main process saves alone, and the checkpoint records both processes."""
+    out = tmp_path / "torchrun"
+    args = [
+        *data_args(reach_push_dataset),
+        *TINY_ACT,
+        "--save_freq=3",
+        "--torch_threads=1",
+        f"--output_dir={out}",
+    ]
+    for steps, resume in ((3, "false"), (6, "true")):
+        proc = subprocess.run(
+            [str(BIN / "torchrun"), "--nproc-per-node=2", "-m", "adademo_lerobot.scripts.train", *args]
+            + [f"--steps={steps}", f"--resume={resume}"],
+            capture_output=True,
+            text=True,
+            timeout=900,
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert proc.stdout.count("trained 3 steps") == 2  # one line per process
+        state = json.loads(
+            (out / "checkpoints" / "last" / "training_state" / "training_step.json").read_text()
+        )
+        assert state["step"] == steps and state.get("num_processes", state.get("dp_world_size")) == 2
