@@ -42,7 +42,12 @@ from adademo_lerobot.strategies.base import (
     per_round,
 )
 from adademo_lerobot.strategies.costed import RANKINGS, expand_paying_for_rollouts
-from adademo_lerobot.strategies.estimates import DEFAULT_DECAY, failure_mean, prior_from_earlier_rounds
+from adademo_lerobot.strategies.estimates import (
+    DEFAULT_DECAY,
+    count_outcomes,
+    failure_mean,
+    prior_from_earlier_rounds,
+)
 
 log = logging.getLogger(__name__)
 
@@ -190,6 +195,13 @@ class BudgetedStrategy:
             records[t].extra = {"budget": budget, "prior": list(posterior[t])}
         sampled = dict.fromkeys(tasks, 0)
         fresh_draws = dict.fromkeys(tasks, 0)  # ablation A: the next fresh initial state of each task
+
+        def answer(task: str, seed: int, record: TaskRoundRecord) -> None:
+            if self.at_failed_states:  # principle B: only where the policy failed
+                ctx.collect_demo(task, seed, record)
+            else:
+                fresh_draws[task] = ctx.collect_from_next_fresh_state(task, fresh_draws[task], record)
+
         while sum(r.demos_added for r in records.values()) < budget:
             open_tasks = [
                 t
@@ -223,22 +235,8 @@ class BudgetedStrategy:
             outcomes = ctx.evaluate(task, seeds)
             if self.at_failed_states:
                 ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
-            alpha, beta = posterior[task]
-            for outcome in outcomes:
-                sampled[task] += 1
-                record.eval_episodes += 1
-                if outcome.success:
-                    record.successes += 1
-                    alpha += 1
-                else:
-                    record.failures += 1
-                    beta += 1
-                    if self.at_failed_states:  # principle B: only where the policy failed
-                        ctx.collect_demo(task, outcome.seed, record)
-                    else:
-                        fresh_draws[task] = ctx.collect_from_next_fresh_state(task, fresh_draws[task], record)
-                ctx.progress(task, record)
-            posterior[task] = (alpha, beta)
+            sampled[task] += len(outcomes)
+            posterior[task] = count_outcomes(ctx, task, record, outcomes, posterior[task], answer)
         spent = sum(r.demos_added for r in records.values())
         for t in tasks:
             r = records[t]

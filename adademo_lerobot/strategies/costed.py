@@ -30,7 +30,7 @@ import numpy as np
 from adademo_lerobot.ledger import read_round_evaluations
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.seeds import expansion_state_seed
-from adademo_lerobot.strategies.estimates import failure_mean, prior_from_earlier_rounds
+from adademo_lerobot.strategies.estimates import count_outcomes, failure_mean, prior_from_earlier_rounds
 
 if TYPE_CHECKING:
     from adademo_lerobot.strategies.base import RoundContext
@@ -146,20 +146,9 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
         )
         outcomes = ctx.evaluate(task, next_states(task, n))
         ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
-        alpha, beta = posterior[task]
-        for outcome in outcomes:
-            record.eval_episodes += 1
-            if outcome.success:
-                record.successes += 1
-                alpha += 1
-            else:
-                record.failures += 1
-                beta += 1
-                ctx.collect_demo(task, outcome.seed, record)
-            if task in rankers:
-                rankers[task].add(outcome.seed, not outcome.success)
-            ctx.progress(task, record)
-        posterior[task] = (alpha, beta)
+        posterior[task] = count_outcomes(ctx, task, record, outcomes, posterior[task], ctx.collect_demo)
+        for outcome in outcomes if task in rankers else ():
+            rankers[task].add(outcome.seed, not outcome.success)
     spent = round_cost(records, c)
     for t in tasks:
         r = records[t]

@@ -36,3 +36,20 @@ def estimated_success_rates(
 ) -> dict[str, float]:
     """Each task's posterior mean success rate before round `round_index`."""
     return {t: 1 - failure_mean(prior_from_earlier_rounds(root, round_index, t, decay)) for t in tasks}
+
+
+def count_outcomes(ctx, task: str, record, outcomes, posterior, answer_failure) -> tuple[float, float]:
+    """Count a batch of evaluation outcomes in the task's record and Beta posterior, in order; each failure is
+    answered by `answer_failure(task, seed, record)` (a demonstration) as it is counted. Returns the posterior."""
+    alpha, beta = posterior
+    for outcome in outcomes:
+        record.eval_episodes += 1
+        if outcome.success:
+            record.successes += 1
+            alpha += 1
+        else:
+            record.failures += 1
+            beta += 1
+            answer_failure(task, outcome.seed, record)
+        ctx.progress(task, record)
+    return alpha, beta

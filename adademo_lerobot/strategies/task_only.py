@@ -9,6 +9,7 @@ failure answered from a fresh state instead of the failed one: budgeted minus th
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from adademo_lerobot.errors import AdaDemoError
@@ -21,11 +22,10 @@ from adademo_lerobot.strategies.base import (
     RoundContext,
     StrategyConfig,
     check_per_round,
-    default_eval_bound,
     per_round,
     planned_demos,
 )
-from adademo_lerobot.strategies.budgeted import BudgetedStrategy
+from adademo_lerobot.strategies.budgeted import BudgetedConfig, BudgetedStrategy
 from adademo_lerobot.strategies.estimates import DEFAULT_DECAY
 
 
@@ -79,16 +79,11 @@ class TaskOnlyConfig(StrategyConfig):
 
     def build(self, round_in_run: int) -> TaskOnlyStrategy | BudgetedStrategy:
         cap = self.max_demos_per_task.at(round_in_run)
-        if self.budget:
-            bound = self.max_eval_episodes_per_task or default_eval_bound(None, cap)
-            return BudgetedStrategy(
-                self.budget.at(round_in_run),
-                cap,
-                bound,
-                self.posterior_decay,
-                at_failed_states=False,
-                name="task_only",
+        if self.budget:  # the budgeted strategy's round, each failure answered from a fresh state
+            budgeted = BudgetedConfig(
+                self.budget, self.max_demos_per_task, self.max_eval_episodes_per_task, self.posterior_decay
             )
+            return dataclasses.replace(budgeted.build(round_in_run), at_failed_states=False, name="task_only")
         return TaskOnlyStrategy(
             self.target_successes.at(round_in_run) or DEFAULT_TARGET_SUCCESSES,
             cap,
