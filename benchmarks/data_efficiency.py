@@ -23,6 +23,13 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     adademo_tempered   --strategy.type=adademo   + --train.sampler=tempered --train.sampler_alpha=0.5
     budgeted_tempered  --strategy.type=budgeted  (exactly B_i) + tempered sampler
     budgeted           --strategy.type=budgeted  + trajectory sampler (which sampler suits the budget strategy)
+    task_only          --strategy.type=task_only with the recipe's budget: budgeted's evaluations and split, each
+                       failure answered from a fresh state (ablation A; budgeted minus it is principle B alone)
+    costed, costed_knn budgeted + --strategy.rollout_cost=1 (rollouts paid from the budget), random or k-NN states
+
+`--test_states per_seed` evaluates each seed on its own fixed states (--eval.seed=100+seed), so that the intervals
+over seeds include the sampling of the test states; `shared` (the default, and every folder written before it)
+evaluates every seed on eval seed 100's states.
 
 Per seed all arms branch from one shared round 0 (dataset, policy, evaluation), train each round from scratch with
 the same training seed, and are evaluated on the same fixed initial states (50 per task): comparisons are paired.
