@@ -31,7 +31,7 @@ from types import MappingProxyType
 from typing import Any
 
 from adademo_lerobot.configs import LEROBOT_CHOICE
-from adademo_lerobot.errors import AdaDemoError, MachineError
+from adademo_lerobot.errors import AdaDemoError, MachineError, machine_cause
 
 
 def lerobot_choice_type(kind: str) -> type:
@@ -256,21 +256,6 @@ def one_line_usage_errors(parse: Callable, *args) -> Any:
     return result
 
 
-def machine_failure_message(err: OSError) -> str:
-    """One line for an OSError the machine raised under a command: what failed, where, and what to do."""
-    import errno
-
-    where = f" ({err.filename})" if err.filename else ""
-    what = err.strerror or " ".join(str(err).split()) or type(err).__name__
-    if err.errno in (errno.ENOSPC, errno.EDQUOT):
-        todo = "free space and run the same command to resume"
-    elif err.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
-        todo = "make the folder writable and run the same command to resume"
-    else:
-        todo = "fix the cause and run the same command to resume"
-    return f"{what}{where}: {todo}"
-
-
 def _resolve(target: str | Callable) -> Any:
     if not isinstance(target, str):
         return target
@@ -337,7 +322,8 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
     except OSError as err:  # the machine: a full disk, an I/O error, a folder that became unwritable
-        print(f"error: {machine_failure_message(err)}", file=sys.stderr)
+        cause, first = machine_cause(err)
+        print(f"error: {cause}: {first}run the same command to resume", file=sys.stderr)
         sys.exit(1)
     except KeyboardInterrupt:
         print("interrupted: rerun the same command to resume", file=sys.stderr)

@@ -20,3 +20,21 @@ class MachineError(AdaDemoError):
 
 class LostRayClusterError(MachineError):
     exit_at_once = True
+
+
+def machine_cause(err: BaseException) -> tuple[str, str]:
+    """What failed, in one line, and what to do first, for an error raised under a command: the cause of a
+    `MachineError` (the same command resumes afterwards)."""
+    import errno
+
+    if isinstance(err, OSError):
+        where = f" ({err.filename})" if err.filename else ""
+        cause = f"{err.strerror or ' '.join(str(err).split()) or type(err).__name__}{where}"
+    else:  # LeRobot's or ours: say what it was, so that a rerun failing the same way can be reported
+        cause = f"{type(err).__name__}: {' '.join(str(err).split())}"
+    code = getattr(err, "errno", None)
+    if code in (errno.ENOSPC, errno.EDQUOT) or "no space left" in str(err).lower():
+        return cause, "free space and "
+    if code in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return cause, "make the folder writable and "
+    return cause, "fix the cause and " if isinstance(err, OSError) else ""

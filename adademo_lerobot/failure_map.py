@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from adademo_lerobot.ledger import read_round_evaluations
+from adademo_lerobot.strategies.estimates import knn_failure_vote
 
 K = 5
 FOLDS = 5
@@ -68,13 +69,7 @@ def knn_failure_scores(states: np.ndarray, failed: np.ndarray, k: int = K, folds
     scores = np.zeros(len(states))
     for f in range(folds):
         train, test = fold != f, fold == f
-        mean, std = states[train].mean(0), states[train].std(0)
-        keep = std > 1e-12
-        a = (states[train][:, keep] - mean[keep]) / std[keep]
-        b = (states[test][:, keep] - mean[keep]) / std[keep]
-        distances = ((b[:, None, :] - a[None, :, :]) ** 2).sum(-1)
-        nearest = np.argsort(distances, axis=1)[:, : min(k, len(a))]
-        scores[test] = failed[train][nearest].mean(1)
+        scores[test] = knn_failure_vote(states[train], failed[train], states[test], k)
     return scores
 
 

@@ -80,11 +80,12 @@ def append_json_lines(path: Path, entries: list[dict]) -> None:
     data = "".join(json.dumps(e) + "\n" for e in entries).encode()
     with open(path, "a+b") as f:
         size = f.seek(0, os.SEEK_END)
-        if size:
+        f.seek(max(0, size - 1))
+        if size and f.read(1) != b"\n":  # torn by a kill: keep whole lines (read further back only then)
             f.seek(max(0, size - 65536))
             tail = f.read()
             cut = tail.rfind(b"\n") + 1
-            if not tail.endswith(b"\n") and (cut or len(tail) == size):  # torn by a kill: keep whole lines
+            if cut or len(tail) == size:
                 size -= len(tail) - cut
                 f.truncate(size)
         try:

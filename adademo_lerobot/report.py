@@ -22,7 +22,7 @@ from adademo_lerobot.configs import ReportConfig
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.ledger import read_ledger
-from adademo_lerobot.report_costs import COSTS, break_even_summary, cost_lines, cost_rows, cost_table
+from adademo_lerobot.report_costs import COSTS, break_even_summary, cost_lines, cost_rows, cost_table, pct
 from adademo_lerobot.tables import table
 
 
@@ -117,19 +117,15 @@ def load_run(run_dir: Path) -> RunResults:
     )
 
 
-def _pct(x: float) -> str:
-    return "-" if pd.isna(x) else f"{100 * x:.0f}"
-
-
 def markdown_tables(run: RunResults) -> str:
     rounds = list(run.success.columns)
     rows = [
-        [t, *(f"{_pct(run.success.loc[t, r])} ({run.demos.loc[t, r]})" for r in rounds)] for t in run.tasks
+        [t, *(f"{pct(run.success.loc[t, r])} ({run.demos.loc[t, r]})" for r in rounds)] for t in run.tasks
     ]
     rows.append(
         [
             "**average**",
-            *(f"**{_pct(run.success.loc['average', r])}** ({run.demos[r].mean():.1f})" for r in rounds),
+            *(f"**{pct(run.success.loc['average', r])}** ({run.demos[r].mean():.1f})" for r in rounds),
         ]
     )
     header = ["task", *(f"round {r}: SR % (demos)" for r in rounds)]
@@ -378,7 +374,7 @@ def write_report(run_dirs: list[Path], out_dir: Path, uniform: RunResults | None
             [
                 run.name,
                 run.label,
-                _pct(run.success.loc["average", run.success.columns[-1]]),
+                pct(run.success.loc["average", run.success.columns[-1]]),
                 f"{run.demos[run.success.columns[-1]].mean():.1f}",
             ]
             for run in runs

@@ -15,7 +15,8 @@ if TYPE_CHECKING:
     from adademo_lerobot.report import RunResults
 
 
-def _pct(x: float) -> str:
+def pct(x: float) -> str:
+    """A rate as whole percent ('-' where unknown)."""
     return "-" if pd.isna(x) else f"{100 * x:.0f}"
 
 
@@ -104,7 +105,7 @@ def cost_table(run: RunResults) -> list[str]:
             f"{added.loc[r, 'rollouts']:.0f}",
             _span(added, "episodes", r),
             f"{added.loc[r, 'evaluation steps']:.0f}",
-            _pct(run.success.loc["average", r]),
+            pct(run.success.loc["average", r]),
         ]
         for r in added.index
     ]

@@ -8,7 +8,6 @@ few lines of the training loop that build the DataLoader around our `WeightedFra
 from __future__ import annotations
 
 import dataclasses
-import errno
 import json
 import logging
 import os
@@ -31,7 +30,7 @@ from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.metadata import read_episode_metadata, try_load_suite_config
 from adademo_lerobot.dataset.store import recover_interrupted_write
 from adademo_lerobot.dataset.video import video_backend
-from adademo_lerobot.errors import AdaDemoError, MachineError
+from adademo_lerobot.errors import AdaDemoError, MachineError, machine_cause
 from adademo_lerobot.files import check_writable_location
 from adademo_lerobot.policy import POLICY_TYPES, check_checkpoint_folder, check_policy_matches_features
 from adademo_lerobot.samplers import frame_weights, make_sampling_scheme
@@ -207,15 +206,11 @@ def save_whole_checkpoint(
         if not isinstance(err, Exception):
             raise
         last = find_last_checkpoint(cfg.output_dir)
-        full = (
-            getattr(err, "errno", None) in (errno.ENOSPC, errno.EDQUOT) or "no space left" in str(err).lower()
-        )
+        cause, first = machine_cause(err)
         raise MachineError(
-            f"writing the checkpoint of step {step} to {checkpoint_dir} failed ({type(err).__name__}: "
-            f"{' '.join(str(err).split())[:200]}); "
+            f"writing the checkpoint of step {step} to {checkpoint_dir} failed ({cause[:200]}); "
             + (f"the last complete checkpoint is step {int(last.name)}" if last else "no checkpoint was kept")
-            + f": {'free space and ' if full else ''}run the same command to continue from it (adademo-train: "
-            "with --resume=true)"
+            + f": {first}run the same command to continue from it (adademo-train: with --resume=true)"
         ) from err
     shutil.rmtree(checkpoint_dir, ignore_errors=True)
     os.replace(partial, checkpoint_dir)

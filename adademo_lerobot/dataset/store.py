@@ -19,7 +19,6 @@ committed episodes, and stock LeRobot opens it right after any failure.
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import logging
 import os
@@ -59,7 +58,7 @@ from adademo_lerobot.dataset.metadata import (
     read_episode_metadata,
 )
 from adademo_lerobot.dataset.video import quiet_video_encoder, video_backend
-from adademo_lerobot.errors import AdaDemoError, MachineError
+from adademo_lerobot.errors import AdaDemoError, MachineError, machine_cause
 from adademo_lerobot.files import COMMIT_LOCK, atomic_write_json, atomic_write_text, check_writable_location
 from adademo_lerobot.patching import temporarily_set
 from adademo_lerobot.records import Demonstration
@@ -169,16 +168,10 @@ def _abandon(dataset) -> None:
 
 def write_failure(err: BaseException, root: Path, what: str) -> MachineError:
     """The one-line error for a write that failed and was rolled back."""
-    if isinstance(err, OSError):
-        where = f" ({err.filename})" if err.filename else ""
-        full = err.errno in (errno.ENOSPC, errno.EDQUOT)
-        cause = f"{err.strerror or err}{where}"
-        todo = "free space and run the same command to resume" if full else "run the same command to resume"
-    else:  # LeRobot's or ours: say what it was, so that a rerun failing the same way can be reported
-        cause, todo = f"{type(err).__name__}: {err}", "run the same command to resume"
+    cause, first = machine_cause(err)
     return MachineError(
         f"writing {what} to the dataset {root} failed ({cause}); the dataset was rolled back to its last commit "
-        f"and opens as before: {todo}"
+        f"and opens as before: {first}run the same command to resume"
     )
 
 
@@ -344,7 +337,6 @@ class DemoDataset:
         producer: str,
         suite: TaskSuite | None,
     ) -> list[int]:
-
         if not demos:
             return []
         with COMMIT_LOCK:  # a command that must leave at once waits for this commit (or its rollback)

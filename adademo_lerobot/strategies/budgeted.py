@@ -41,7 +41,7 @@ from adademo_lerobot.strategies.base import (
     default_eval_bound,
     per_round,
 )
-from adademo_lerobot.strategies.costed import RANKINGS, expand_paying_for_rollouts
+from adademo_lerobot.strategies.costed import DEFAULT_FAILURE_WORTH, RANKINGS, expand_paying_for_rollouts
 from adademo_lerobot.strategies.estimates import (
     DEFAULT_DECAY,
     count_outcomes,
@@ -104,7 +104,7 @@ class BudgetedConfig(StrategyConfig):
     # for rollouts too, and evaluation goes only where a found failure is worth its rollouts (strategies/costed.py).
     rollout_cost: float | None = None
     # With a rollout cost: how many demonstrations from random states one at a failed state is worth.
-    failure_worth: float = 3.0
+    failure_worth: float = DEFAULT_FAILURE_WORTH
     # With a rollout cost: `random` states, or `knn`: the states predicted likeliest to fail first.
     rank_states: str = "random"
 
@@ -131,7 +131,7 @@ class BudgetedConfig(StrategyConfig):
 
 def check_rollout_cost(rollout_cost: float | None, failure_worth: float, rank_states: str) -> None:
     if rollout_cost is None:
-        if failure_worth != 3.0 or rank_states != "random":
+        if failure_worth != DEFAULT_FAILURE_WORTH or rank_states != "random":
             raise AdaDemoError(
                 "--strategy.failure_worth and --strategy.rank_states are used with --strategy.rollout_cost: give "
                 "the cost of a policy rollout in demonstrations (e.g. 1 on a robot), or drop them"
@@ -159,7 +159,7 @@ class BudgetedStrategy:
     at_failed_states: bool = True  # principle B; False: ablation A (a fresh state per failure)
     name: str = "budgeted"
     rollout_cost: float | None = None
-    failure_worth: float = 3.0
+    failure_worth: float = DEFAULT_FAILURE_WORTH
     rank_states: str = "random"
     commits_by_task = False  # one loop over the whole round: demos are committed in the order they arrive
 

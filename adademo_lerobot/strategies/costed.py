@@ -30,13 +30,19 @@ import numpy as np
 from adademo_lerobot.ledger import read_round_evaluations
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.seeds import expansion_state_seed
-from adademo_lerobot.strategies.estimates import count_outcomes, failure_mean, prior_from_earlier_rounds
+from adademo_lerobot.strategies.estimates import (
+    count_outcomes,
+    failure_mean,
+    knn_failure_vote,
+    prior_from_earlier_rounds,
+)
 
 if TYPE_CHECKING:
     from adademo_lerobot.strategies.base import RoundContext
     from adademo_lerobot.strategies.budgeted import BudgetedStrategy
 
 RANKINGS = ("random", "knn")
+DEFAULT_FAILURE_WORTH = 3.0  # W: the paper reaches Uniform's result with about a third of the data
 OPTIMISM = 0.8  # the posterior quantile of the failure rate that opens, closes and orders the tasks
 NEIGHBOURS = 5
 MIN_OUTCOMES = 5  # outcomes (with at least one failure) before the k-NN ranks candidates
@@ -77,14 +83,8 @@ class FailureRanker:
         failed = np.asarray(self.failed, dtype=np.float64)
         if len(failed) < MIN_OUTCOMES or not failed.any():
             return None
-        known = np.stack(self.states)
-        mean, std = known.mean(0), known.std(0)
-        keep = std > 1e-12
-        a = (known[:, keep] - mean[keep]) / std[keep]
-        states = np.stack([self.state(s) for s in seeds])
-        b = (states[:, keep] - mean[keep]) / std[keep]
-        nearest = np.argsort(((b[:, None, :] - a[None, :, :]) ** 2).sum(-1), axis=1, kind="stable")
-        return failed[nearest[:, :NEIGHBOURS]].mean(1)
+        query = np.stack([self.state(s) for s in seeds])
+        return knn_failure_vote(np.stack(self.states), failed, query, NEIGHBOURS)
 
 
 def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) -> list[TaskRoundRecord]:

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from adademo_lerobot.ledger import read_round_evaluations
 
 DEFAULT_DECAY = 0.5  # weight of a round's outcomes per round since
@@ -53,3 +55,14 @@ def count_outcomes(ctx, task: str, record, outcomes, posterior, answer_failure) 
             answer_failure(task, outcome.seed, record)
         ctx.progress(task, record)
     return alpha, beta
+
+
+def knn_failure_vote(known: np.ndarray, failed: np.ndarray, query: np.ndarray, k: int) -> np.ndarray:
+    """Each query state's share of failures among its k nearest known states (features standardized on the
+    known states; constant features dropped)."""
+    mean, std = known.mean(0), known.std(0)
+    keep = std > 1e-12
+    a = (known[:, keep] - mean[keep]) / std[keep]
+    b = (query[:, keep] - mean[keep]) / std[keep]
+    nearest = np.argsort(((b[:, None, :] - a[None, :, :]) ** 2).sum(-1), axis=1)[:, : min(k, len(a))]
+    return failed[nearest].mean(1)
