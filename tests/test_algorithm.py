@@ -281,6 +281,10 @@ class BudgetRound:
         pass
 
     def collect_demo(self, task, seed, record):
+        if seed not in self._position[task]:  # a state never evaluated: a fresh demonstration
+            self.fresh[task].append(seed)
+            record.demos_added += 1
+            return True
         self.collected[task].append(seed)
         if self._position[task][seed] in self.expert_fails_on.get(task, set()):
             record.expert_failures += 1
@@ -293,7 +297,7 @@ class BudgetRound:
 
 
 def test_allocate_splits_exactly_in_proportion_within_caps():
-    from adademo_lerobot.strategies.budgeted import allocate
+    from adademo_lerobot.strategies.estimates import allocate
 
     assert allocate(10, {"a": 0.5, "b": 0.3, "c": 0.2}, {"a": 10, "b": 10, "c": 10}) == {
         "a": 5,
@@ -390,17 +394,36 @@ def test_task_only_with_a_budget_evaluates_as_budgeted_but_demonstrates_from_fre
 
 
 def test_rollout_cost_counts_rollouts_against_the_budget_and_closes_tasks_not_worth_evaluating():
-    outcomes = {"solved": "S" * 100, "weak": "FSFFSFFSFFSFFSFF" * 6, "mid": "SSSFSSSFSSSF" * 8}
-    ctx = BudgetRound(outcomes, budget=20, batch_size=2)
+    outcomes = {"solved": "S" * 100, "weak": "FSFFSFFSFFSFFSFF" * 6, "mid": "SFSSF" * 20}
+    ctx = BudgetRound(outcomes, budget=30, batch_size=2, max_demos_per_task=8)
     records = {r.task: r for r in ctx.strategy(rollout_cost=1.0, failure_worth=3.0).expand(ctx)}
     cost = sum(r.demos_added + r.expert_failures + r.eval_episodes for r in records.values())
-    assert cost <= 20
-    # A task that keeps succeeding closes once c / u > W - 1 (u < 0.5): after two successes from Beta(1, 1).
+    assert cost == 30  # the whole budget: rollouts and demonstrations at failures, then fresh demonstrations
+    # A task that keeps succeeding closes once c / u > W - 1 (u < 0.5): after two successes from Beta(1, 1),
+    # and its posterior mean failure (1/4) is below 1 / W: no fresh demonstration either.
     assert records["solved"].eval_episodes <= 2 and records["solved"].demos_added == 0
+    assert not ctx.fresh["solved"]
     assert records["weak"].demos_added > records["mid"].demos_added
-    for task, r in records.items():  # demonstrations only at failed states, every evaluation accounted
+    for (
+        task,
+        r,
+    ) in records.items():  # demonstrations at failed states or fresh ones, every evaluation accounted
         assert all(ctx.outcomes[task][ctx._position[task][s]] == "F" for s in ctx.collected[task])
         assert r.eval_episodes == r.successes + r.failures
+        assert (
+            r.demos_added
+            == len(ctx.collected[task]) + len(ctx.fresh[task])
+            == r.failures + len(ctx.fresh[task])
+        )
+        assert r.extra["fresh_demos"] == len(ctx.fresh[task])
+        if ctx.fresh[task]:  # only once evaluating stopped paying: c / u > W - 1
+            assert r.extra["closed_as_not_worth"]
+    assert len(ctx.fresh["mid"]) == 3  # principle A alone for what the rollouts no longer pay for
+    # With room left under CAP only: what no task is worth stays unspent.
+    roomy = BudgetRound(dict(outcomes), budget=40, batch_size=2, max_demos_per_task=8)
+    records = {r.task: r for r in roomy.strategy(rollout_cost=1.0).expand(roomy)}
+    assert {t: r.demos_added for t, r in records.items()} == {"solved": 0, "weak": 8, "mid": 8}
+    assert records["solved"].extra["round_cost"] == 34
     # Rollouts free: the budget goes to demonstrations only, and every task stays worth evaluating.
     free = BudgetRound(dict(outcomes), budget=20, batch_size=2)
     records = {r.task: r for r in free.strategy(rollout_cost=0.0).expand(free)}

@@ -113,7 +113,8 @@ def test_uniform_adds_exactly_n_per_task_from_fresh_states(dataset):
 
 def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset, ckpt):
     """Round 2 ranks its states by the outcomes of round 1 (k-NN): two rounds, each within its budget, every demo
-    at a state the policy failed, and the journaled evaluations are exactly the ledger's rollouts."""
+    at a state the policy failed or counted as a fresh one (no rollout), and the journaled evaluations are exactly
+    the ledger's rollouts."""
     for round_index in (1, 2):
         expand(
             dataset,
@@ -130,7 +131,10 @@ def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset,
         evaluations = [e for e in read_round_evaluations(dataset, round_index) if e["type"] == "eval"]
         assert len(evaluations) == sum(r["eval_episodes"] for r in ledger)
         failed = {(e["task"], e["seed"]) for e in evaluations if not e["success"]}
-        assert set(zip(new.task, new["adademo/seed"], strict=True)) <= failed
+        evaluated = {(e["task"], e["seed"]) for e in evaluations}
+        demos = set(zip(new.task, new["adademo/seed"], strict=True))
+        assert demos & evaluated <= failed
+        assert len(demos - evaluated) == sum(r["extra"]["fresh_demos"] for r in ledger)
 
 
 @pytest.mark.slow

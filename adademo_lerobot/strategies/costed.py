@@ -7,16 +7,21 @@ is worth its rollouts:
 
 - each task's failure rate p has a Beta posterior (as the budgeted strategy keeps it: the earlier rounds'
   outcomes, decayed, then this round's); its optimistic value u, the posterior's 80th percentile, decides;
-- a task closes for the round once even u makes the expected rollout cost of its next failure, c / u, exceed what
+- a task closes for evaluation once even u makes the expected rollout cost of its next failure, c / u, exceed what
   a demonstration at a failure is worth beyond one from a random state, W - 1 demonstrations (W =
   `--strategy.failure_worth`: the paper reaches Uniform's result with about a third of the data, W = 3). A task
-  that keeps succeeding closes after a rollout or two instead of being evaluated to the bound; budget that no open
-  task is worth is left unspent, which is what the user saves;
+  that keeps succeeding closes after a rollout or two instead of being evaluated to the bound;
 - the open task with the highest u is evaluated next (its failures are the likeliest cheap, principle A wants
   demos there, and a task not yet tried has a high u, so every task is probed before one takes the round), one
   state at first and as many at once as it has found failures this round (at most `--eval.batch_size`);
-- `--strategy.rank_states=knn` evaluates the candidate states a k-nearest-neighbour vote over every outcome seen so
-  far (earlier rounds and this one) predicts most likely to fail, instead of the next random ones.
+- once no task is worth evaluating, the rest of the budget buys demonstrations from fresh initial states with no
+  rollout (principle A alone): a fresh state is a failure with probability p, so such a demonstration is worth
+  W p and pays while the task's posterior mean failure rate is at least 1 / W; the rest is split across those
+  tasks in proportion to it (at most CAP each, as the budgeted split). Budget that no task is worth is left
+  unspent, which is what the user saves;
+- `--strategy.rank_states=knn` takes, for evaluation and for those fresh demonstrations, the candidate states a
+  k-nearest-neighbour vote over every outcome seen so far (earlier rounds and this one) predicts most likely to
+  fail, instead of the next random ones: demonstrations at predicted failures without a rollout.
 
 Every decision depends only on journaled outcomes, so an interrupted round resumes to the same result.
 """
@@ -29,8 +34,9 @@ import numpy as np
 
 from adademo_lerobot.ledger import read_round_evaluations
 from adademo_lerobot.records import TaskRoundRecord
-from adademo_lerobot.seeds import expansion_state_seed
+from adademo_lerobot.seeds import expansion_state_seed, fresh_state_seed
 from adademo_lerobot.strategies.estimates import (
+    allocate,
     count_outcomes,
     failure_mean,
     knn_failure_vote,
@@ -96,7 +102,12 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
     }
     records = {t: ctx.new_record(t, strategy.name, cap=cap) for t in tasks}
     for t in tasks:
-        records[t].extra = {"budget": strategy.budget, "prior": list(posterior[t]), "rollout_cost": c}
+        records[t].extra = {
+            "budget": strategy.budget,
+            "prior": list(posterior[t]),
+            "rollout_cost": c,
+            "fresh_demos": 0,
+        }
     rankers = {t: FailureRanker(ctx, t) for t in tasks} if strategy.rank_states == "knn" else {}
     drawn = dict.fromkeys(tasks, 0)  # candidate states drawn so far (each is evaluated at most once)
     pool: dict[str, list[int]] = {t: [] for t in tasks}  # drawn, not yet evaluated
@@ -124,31 +135,50 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
         pool[t] = [s for s in pool[t] if s not in chosen]
         return chosen
 
+    def demonstrate_from_fresh_state(t: str) -> None:
+        """One expert attempt (paid whether kept or not) from the task's next fresh state, or with the k-NN from
+        the candidate predicted likeliest to fail."""
+        if t in rankers:
+            seed = next_states(t, 1)[0]
+        else:
+            seed = fresh_state_seed(ctx.seed, ctx.round_index, t, fresh_draws[t])
+            fresh_draws[t] += 1
+        records[t].extra["fresh_demos"] += ctx.collect_demo(t, seed, records[t])
+        ctx.progress(t, records[t])
+
+    fresh_draws = dict.fromkeys(tasks, 0)
     while True:
         left = strategy.budget - round_cost(records, c)
-        estimates = {
-            t: optimistic_failure(t)
-            for t in tasks
-            if records[t].demos_added < cap and records[t].eval_episodes < strategy.max_eval_episodes_per_task
-        }
-        worth = {t: u for t, u in estimates.items() if u >= threshold}
+        open_tasks = [t for t in tasks if records[t].demos_added < cap]
         affordable = int(left // (c + 1))  # rollouts that can still pay for the demonstration each may need
-        if not worth or affordable < 1:
+        worth = {
+            t: u
+            for t in open_tasks
+            if records[t].eval_episodes < strategy.max_eval_episodes_per_task
+            and (u := optimistic_failure(t)) >= threshold
+        }
+        if worth and affordable >= 1:
+            task = max(worth, key=lambda t: (worth[t], -records[t].eval_episodes, -tasks.index(t)))
+            record = records[task]
+            n = min(
+                ctx.batch_size,
+                max(1, record.failures),  # one state at first, more as the task shows failures
+                affordable,
+                cap - record.demos_added,
+                strategy.max_eval_episodes_per_task - record.eval_episodes,
+            )
+            outcomes = ctx.evaluate(task, next_states(task, n))
+            ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
+            posterior[task] = count_outcomes(ctx, task, record, outcomes, posterior[task], ctx.collect_demo)
+            for outcome in outcomes if task in rankers else ():
+                rankers[task].add(outcome.seed, not outcome.success)
+            continue
+        # Principle A alone: fresh-state demonstrations where W p >= 1, split in proportion to p within CAP.
+        weak = {t: m for t in open_tasks if strategy.failure_worth * (m := failure_mean(posterior[t])) >= 1}
+        if not weak or left < 1:
             break
-        task = max(worth, key=lambda t: (worth[t], -records[t].eval_episodes, -tasks.index(t)))
-        record = records[task]
-        n = min(
-            ctx.batch_size,
-            max(1, record.failures),  # one state at first, more as the task shows failures
-            affordable,
-            cap - record.demos_added,
-            strategy.max_eval_episodes_per_task - record.eval_episodes,
-        )
-        outcomes = ctx.evaluate(task, next_states(task, n))
-        ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
-        posterior[task] = count_outcomes(ctx, task, record, outcomes, posterior[task], ctx.collect_demo)
-        for outcome in outcomes if task in rankers else ():
-            rankers[task].add(outcome.seed, not outcome.success)
+        share = allocate(int(left), weak, {t: cap - records[t].demos_added for t in weak})
+        demonstrate_from_fresh_state(max(weak, key=lambda t: (share[t], weak[t], -tasks.index(t))))
     spent = round_cost(records, c)
     for t in tasks:
         r = records[t]
@@ -159,5 +189,6 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
             posterior_success_mean=1 - failure_mean(posterior[t]),
             round_cost=spent,
             closed_as_not_worth=optimistic_failure(t) < threshold,
+            fresh_attempts=fresh_draws[t],
         )
     return [records[t] for t in tasks]

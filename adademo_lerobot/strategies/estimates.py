@@ -66,3 +66,32 @@ def knn_failure_vote(known: np.ndarray, failed: np.ndarray, query: np.ndarray, k
     b = (query[:, keep] - mean[keep]) / std[keep]
     nearest = np.argsort(((b[:, None, :] - a[None, :, :]) ** 2).sum(-1), axis=1)[:, : min(k, len(a))]
     return failed[nearest].mean(1)
+
+
+def allocate(total: int, weights: dict[str, float], caps: dict[str, int]) -> dict[str, int]:
+    """Split `total` integer units across keys in proportion to `weights`, at most `caps[k]` each (water
+    filling, then largest remainders; ties go to the earlier key). Sums to min(total, sum(caps))."""
+    alloc = dict.fromkeys(weights, 0)
+    left = min(total, sum(max(c, 0) for c in caps.values()))
+    open_keys = [k for k in weights if caps[k] > 0]
+    while left > 0 and open_keys:
+        mass = sum(max(weights[k], 0.0) for k in open_keys)
+        shares = {
+            k: left * (max(weights[k], 0.0) / mass if mass > 0 else 1 / len(open_keys)) for k in open_keys
+        }
+        capped = [k for k in open_keys if alloc[k] + shares[k] >= caps[k]]
+        if capped:  # these reach their cap: give it, and share the rest among the others
+            for k in capped:
+                left -= caps[k] - alloc[k]
+                alloc[k] = caps[k]
+            open_keys = [k for k in open_keys if k not in capped]
+            continue
+        floors = {k: int(shares[k]) for k in open_keys}
+        for k in open_keys:
+            alloc[k] += floors[k]
+        left -= sum(floors.values())
+        by_remainder = sorted(open_keys, key=lambda k: (-(shares[k] - floors[k]), list(weights).index(k)))
+        for k in by_remainder[:left]:
+            alloc[k] += 1
+        left = 0
+    return alloc
