@@ -26,6 +26,7 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     task_only          --strategy.type=task_only with the recipe's budget: budgeted's evaluations and split, each
                        failure answered from a fresh state (ablation A; budgeted minus it is principle B alone)
     costed, costed_knn budgeted + --strategy.rollout_cost=1 (rollouts paid from the budget), random or k-NN states
+    costed_w5          costed with --strategy.failure_worth=5 (evaluates longer before it closes a task)
 
 `--test_states per_seed` evaluates each seed on its own fixed states (--eval.seed=100+seed), so that the intervals
 over seeds include the sampling of the test states; `shared` (the default, and every folder written before it)
@@ -91,6 +92,14 @@ ALL_ARMS = {
         "--strategy.rollout_cost=1",
         "--strategy.rank_states=knn",
     ],
+    # W = 5: a failure worth more, so evaluation pays down to p = 1/4 (closes after ~5 straight successes, not 2)
+    # and fresh demonstrations down to p = 1/5: on seed 0, W = 3 closed peg-insert (54 %) after two lucky successes.
+    "costed_w5": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        "--strategy.rollout_cost=1",
+        "--strategy.failure_worth=5",
+    ],
     # Corrections from the point of failure (--demo_start=takeover), with either rule (the default chosen here).
     "budgeted_takeover": ["--strategy.type=budgeted", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
     "adademo_takeover": ["--strategy.type=adademo", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
@@ -117,6 +126,7 @@ LABELS = {
     "task_only": "Ablation A: budgeted's split from fresh states",
     "costed": "Budgeted paying for rollouts (cost 1, W = 3)",
     "costed_knn": "Budgeted paying for rollouts (cost 1, W = 3), k-NN states",
+    "costed_w5": "Budgeted paying for rollouts (cost 1, W = 5)",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
