@@ -18,21 +18,73 @@ evaluations (so a task the expert cannot solve still ends). The outer loop (trai
 larger than the fewest episodes that could end the loop, so batching never evaluates past the stopping point.
 With a Ray executor the expert starts on all of a batch's failures at once and several tasks' loops run side by
 side; every decision below is the same, so is the result.
+
+`InnerLoop` is what this loop and the strategies that answer failed evaluations (`adademo`, `budgeted`) ask of a
+round. Two contexts provide it: a simulated round (`strategies.base.RoundContext`: executors, a scripted or policy
+expert) and a person's round on a robot (`record.PersonRound`); both keep their books (journal, ledger record,
+counts) with `strategies.bookkeeping.JournaledRound`, so the same rule from the same flags drives both.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.seeds import expansion_state_seed
 
-if TYPE_CHECKING:  # the strategies call this loop with their context; the loop needs only its interface
-    from adademo_lerobot.strategies.base import RoundContext
+if TYPE_CHECKING:
+    from adademo_lerobot.strategies.base import Outcome
+
+
+class InnerLoop(Protocol):
+    """A round as the inner loop sees it: initial states to evaluate the policy on, and an expert (a simulated one
+    or a person) to answer each failure with a demonstration from that state; everything journaled."""
+
+    seed: int  # the run's seed: with the round and the task it names every initial state
+    round_index: int  # the dataset's round
+
+    @property
+    def batch_size(self) -> int:
+        """Initial states evaluated at once (1: a person at one robot)."""
+
+    @property
+    def tasks(self) -> list[str]:
+        """The round's tasks, in order."""
+
+    @property
+    def root(self) -> Path:
+        """The dataset's folder (its earlier rounds' evaluations feed the success estimates)."""
+
+    def new_record(
+        self,
+        task: str,
+        strategy: str,
+        target_successes: int | None = None,
+        cap: int | None = None,
+        demos: int | None = None,
+    ) -> TaskRoundRecord:
+        """The ledger's record of `task` in this round, with the strategy's E, CAP and N (None where unused)."""
+
+    def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
+        """The policy's outcome from each seed's initial state (journaled ones are reused, not run again)."""
+
+    def ask_expert(self, task: str, seeds: list[int]) -> None:
+        """The expert may start on these failed states now (a person does one when `collect_demo` asks)."""
+
+    def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
+        """A demonstration from this failed state (at most one a round), counted in `record`; False if none came."""
+
+    def progress(self, task: str, record: TaskRoundRecord) -> None:
+        """The record changed (for a progress display)."""
+
+    def run_tasks(self, work: Callable[[str], TaskRoundRecord]) -> list[TaskRoundRecord]:
+        """`work(task)` for every task, the records in task order."""
 
 
 def collect_on_failed_states(
-    ctx: RoundContext,
+    ctx: InnerLoop,
     task: str,
     record: TaskRoundRecord,
     E: int,  # noqa: N803  (the paper's names)

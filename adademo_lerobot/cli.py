@@ -232,6 +232,14 @@ def configure_logging() -> None:
     ours.handlers = [info, warnings]
 
 
+def check_moved_flags(config_cls: type, argv: list[str]) -> None:
+    """A flag an earlier release had and this one moved (`config_cls.MOVED_FLAGS`: old name -> new dotted name) is
+    refused in one line that gives its new spelling, instead of draccus's unknown-argument error."""
+    for old, new in getattr(config_cls, "MOVED_FLAGS", {}).items():
+        if any(arg == f"--{old}" or arg.startswith(f"--{old}=") for arg in argv):
+            raise AdaDemoError(f"--{old} moved: use --{new}")
+
+
 def one_line_usage_errors(parse: Callable, *args) -> Any:
     """`parse(*args)`, with argparse's usage error (an unknown flag, an invalid choice: usage text, then
     `prog: error: ...`, exit 2) turned into our one `error:` line. Help and anything else pass through."""
@@ -292,6 +300,7 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
         signal.signal(signal.SIGTERM, _interrupted_by_signal)
     try:
         try:
+            check_moved_flags(config_cls, argv)
             cfg = one_line_usage_errors(parse_light, config_cls, argv, lerobot_config is not None)
             if hasattr(cfg, "validate"):
                 cfg.validate()

@@ -70,9 +70,17 @@ class TrainSamplingArgs:
     # `preset`: the policy's own learning-rate schedule (ACT: constant); `cosine`: a short warmup, then cosine
     # decay to a hundredth of the policy's learning rate at the last step (a steadier last checkpoint).
     lr_schedule: str = "preset"
+    # Datasets whose frames carry LeRobot's `intervention` flag (`lerobot-rollout --strategy.type=dagger`): how
+    # often the policy's own frames are drawn as imitation targets beside the person's (0: never; 1: as often).
+    autonomous_weight: float = 0.0
 
     def validate(self) -> None:
         check_sampler_flags(self.sampler, self.sampler_alpha)
+        if not 0.0 <= self.autonomous_weight < float("inf"):
+            raise AdaDemoError(
+                f"--autonomous_weight must be >= 0 (0: the policy's own frames are not imitated), got "
+                f"{self.autonomous_weight}"
+            )
         if self.lr_schedule not in LR_SCHEDULES:
             raise AdaDemoError(
                 f"--lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}"
@@ -191,3 +199,6 @@ class ReportConfig:
     # A Uniform run on the same tasks: the break-even rollout cost c* against it, in plain words.
     compare_to: str | None = None
     output_dir: str | None = None
+    # A dataset instead of a run folder (one recorded on a robot: lerobot-record, lerobot-rollout's DAgger,
+    # adademo-record): the person's work in it per round and task, printed (and report.md in --output_dir).
+    dataset_root: str | None = None

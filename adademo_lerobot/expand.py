@@ -11,6 +11,7 @@ kill between the ledger write and the journal's end is finished, never mistaken 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from contextlib import nullcontext
 from pathlib import Path
 
@@ -126,11 +127,17 @@ def plan(cfg, suite, ctx: RoundContext, strategy) -> list[dict]:
 
 
 def run_expand(
-    cfg, round_in_run: int | None = None, round_index: int | None = None, executor=None
+    cfg,
+    round_in_run: int | None = None,
+    round_index: int | None = None,
+    executor=None,
+    on_ledger_written: Callable[[int], None] | None = None,
 ) -> list[TaskRoundRecord] | list[dict]:
     """One round. Alone (`adademo-expand`), the round after the dataset's last, with the strategy's one value per
     setting; from adademo-run, the run's round `round_in_run` (its per-round values) as the dataset's round
-    `round_index` (the run's one truth), on the run's `executor` (kept across rounds)."""
+    `round_index` (the run's one truth), on the run's `executor` (kept across rounds). `on_ledger_written(round)`
+    is called between the ledger write and the journal's end (a kill there must not lose the next round: the
+    tests kill the process from it)."""
     cfg.validate(one_round=round_in_run is None)
     if cfg.dataset.root is None:
         raise AdaDemoError("--dataset.root is required (an adademo dataset made by adademo-collect)")
@@ -159,13 +166,13 @@ def run_expand(
             executor = make_executor(cfg, suite, cfg.collector, cfg.eval.batch_size)
         try:
             executor.use_policy(str(cfg.policy.path) if needs_policy else None)
-            return _expand(cfg, suite, executor, strategy, needs_policy, root, round_index)
+            return _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_ledger_written)
         finally:
             if own_executor:
                 executor.close()
 
 
-def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
+def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_ledger_written=None):
     dataset = (
         DemoDataset(cfg.dataset.repo_id, root, suite.config)
         if cfg.plan_only
@@ -230,7 +237,8 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index):
         record.wall_seconds = round(journal.seconds(record.task), 3)
     check_ledger_matches_dataset(root, round_index, records)
     append_ledger(root, records)
-    _after_ledger_written()
+    if on_ledger_written is not None:
+        on_ledger_written(round_index)
     journal.finish()
     print(format_round_table(records))
     print(f"round {round_index}: {sum(r.demos_added for r in records)} new episodes in {root}")
@@ -245,15 +253,6 @@ def share_round_time(records: list[TaskRoundRecord], seconds: float, journal: Ro
     }
     total = sum(steps.values()) or 1
     journal.append(*({"type": "time", "task": t, "seconds": seconds * n / total} for t, n in steps.items()))
-
-
-def _after_ledger_written() -> None:
-    """The point between the ledger write and the journal's end (a kill here must not lose the next round).
-    Tests set ADADEMO_TEST_KILL_AFTER_LEDGER=1 to die exactly here."""
-    import os
-
-    if os.environ.get("ADADEMO_TEST_KILL_AFTER_LEDGER") == "1":
-        os.kill(os.getpid(), 9)
 
 
 def check_ledger_matches_dataset(root: Path, round_index: int, records: list[TaskRoundRecord]) -> None:

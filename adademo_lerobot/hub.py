@@ -48,6 +48,7 @@ SOURCE_DESCRIPTIONS = {
     "correction": "corrections: the expert took over a failed policy rollout and finished the task from there",
     "human": "demonstrations a person teleoperated on the robot (adademo-record)",
     "imported": "episodes recorded elsewhere (no adademo provenance)",
+    "policy": "the policy's own episodes, kept by lerobot-rollout's DAgger (not imitated by default)",
 }
 
 
@@ -60,8 +61,9 @@ def source_description(name: str) -> str:
 
 COLUMN_DESCRIPTIONS = {
     "adademo/round": "expansion round that added the episode (0 = initial collection)",
-    "adademo/source": "`initial`, the strategy that added it (`adademo`, `budgeted`, `uniform`, `task_only`), or "
-    "`correction` (the expert took over a failed policy rollout)",
+    "adademo/source": "`initial`, the strategy that added it (`adademo`, `budgeted`, `uniform`, `task_only`), "
+    "`correction` (the expert or a person took over a failed policy rollout), `policy` (the policy's own, in "
+    "LeRobot's DAgger data) or `imported`",
     "adademo/seed": "seed of the episode's initial state (with the suite, reproduces it)",
     "adademo/initial_state": "the initial state itself (float64 list; MetaWorld: the task's random vector)",
     "adademo/collector": "the expert that recorded it",

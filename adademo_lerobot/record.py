@@ -2,9 +2,12 @@
 
     adademo-record --robot.type=so101_follower --robot.port=/dev/ttyACM0 --robot.cameras=... \\
         --teleop.type=so101_leader --teleop.port=/dev/ttyACM1 --policy.path=CKPT \\
-        --dataset.repo_id=USER/NAME --dataset.root=FOLDER --target_successes=5 --max_demos_per_task=10
+        --dataset.repo_id=USER/NAME --dataset.root=FOLDER \\
+        --strategy.type=adademo --strategy.target_successes=5 --strategy.max_demos_per_task=10
 
-For every task of the dataset (or `--tasks`), until E successes or CAP demonstrations:
+The strategy is adademo-expand's, from the same flags with the same defaults (`--strategy.*`): the round runs the
+strategy's own `expand`, with a person-backed round context (`PersonRound`) in place of the simulated one. With
+`--strategy.type=adademo`, for every task of the dataset (or `--tasks`), until E successes or CAP demonstrations:
   1. the person sets up a new scene and the policy runs an episode (the person ends it early with n);
   2. the person marks it a success (s) or a failure (f);
   3. after a failure the person puts the scene back as it was when that episode started (its first camera frame is
@@ -14,15 +17,20 @@ With `--demo_start=takeover` the person may instead take over while the policy g
 teleoperator's intervention event): the policy episode counts as a failure and the person's correction is recorded
 from that moment, with the robot's joint positions then as its start state (no scene to set up again). A failure
 the person did not take over is answered as above.
-Before the first episode, a plan from each task's latest success rate (the paper's N_k = E/SR_k - E) says how many
-demonstrations each task will likely need and how long that takes at the dataset's episode length (principle A).
+With `--strategy.type=budgeted --strategy.budget=B` the same steps spend exactly B demonstrations, the task
+furthest below its share of the budget going next. Strategies that also demonstrate from fresh initial states
+(uniform, task_only, budgeted paying for rollouts) need a simulated round and are refused.
+Before the first episode, a plan from each task's latest success rate (adademo: the paper's N_k = E/SR_k - E;
+budgeted: the budget's first split) says how many demonstrations each task will likely need and how long that takes
+at the dataset's episode length (principle A).
 
 Keys (LeRobot's key listener, as in lerobot-record): n or Right = next, r or Left = redo, s = success,
 f = failure, t = take over (with --demo_start=takeover), q or Esc = stop. A simulated robot (`adademo_sim`) sets its scenes itself, and a teleoperator that
 reports LeRobot's teleop events (`adademo_scripted`) answers for the person.
 
-The loop is Algorithm 1's own (`algorithm.collect_on_failed_states`, as adademo-expand runs it) with a person-backed
-round context (`PersonRound`). The round is journaled as adademo-expand's: every policy episode (success, length, initial joints, first frames)
+The loop is the strategy's own (adademo: `algorithm.collect_on_failed_states`, as adademo-expand runs it) with a
+person-backed round context (`PersonRound`, an `algorithm.InnerLoop` keeping its books as the simulated one does).
+The round is journaled as adademo-expand's: every policy episode (success, length, initial joints, first frames)
 and every demonstration. A stop (q, Ctrl-C) or a disconnect loses at most the episode in progress; the same command
 resumes the round, and no failure gets two demonstrations. The ledger records the person's time.
 """
@@ -31,25 +39,29 @@ from __future__ import annotations
 
 import queue
 import re
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
-from adademo_lerobot.algorithm import collect_on_failed_states
 from adademo_lerobot.configs import PolicyPathArgs, lerobot_choice
 from adademo_lerobot.dataset.check import check_dataset_integrity
-from adademo_lerobot.dataset.layout import ADADEMO_DIR, CORRECTION_SOURCE
+from adademo_lerobot.dataset.interventions import check_writable_features
+from adademo_lerobot.dataset.layout import ADADEMO_DIR
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata, read_info
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.expand import next_round
+from adademo_lerobot.expand import check_ledger_matches_dataset, next_round
 from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import RoundJournal, append_ledger
 from adademo_lerobot.records import Demonstration, TaskRoundRecord
-from adademo_lerobot.strategies import planned_demos
-from adademo_lerobot.strategies.base import Outcome, default_eval_bound
+from adademo_lerobot.strategies import StrategyConfig, default_strategy, planned_demos
+from adademo_lerobot.strategies.base import Outcome
+from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_demos, demo_entry
+from adademo_lerobot.strategies.budgeted import BudgetedStrategy
 from adademo_lerobot.strategies.estimates import failure_mean, prior_from_earlier_rounds
 from adademo_lerobot.tables import table
 from adademo_lerobot.takeover import DEMO_STARTS
@@ -79,12 +91,10 @@ class RecordConfig:
     dataset: RecordDatasetArgs = field(default_factory=RecordDatasetArgs)
     # Tasks of this round, comma-separated (task strings of the dataset); default: every task of the dataset.
     tasks: str | None = None
-    # E: policy successes that end a task's round.
-    target_successes: int = 5
-    # CAP: at most this many demonstrations per task in the round.
-    max_demos_per_task: int = 10
-    # Bound on policy episodes per task (default 2 x (E + CAP)).
-    max_eval_episodes_per_task: int | None = None
+    # The strategy and its settings, adademo-expand's (same flags, same defaults): --strategy.type=adademo (until E
+    # successes or CAP demos per task: --strategy.target_successes, --strategy.max_demos_per_task, or
+    # --strategy.budget) or budgeted (--strategy.budget=B demos in the round); `docs/commands/record.md`.
+    strategy: StrategyConfig = field(default_factory=default_strategy)
     # Demonstrations tried per failure before moving on (each redo counts).
     max_attempts: int = 3
     # Who marks success and ends episodes: `keys` (the person), `teleop` (the teleoperator's events, e.g.
@@ -98,6 +108,13 @@ class RecordConfig:
     seed: int = 0
     device: str = "cpu"
 
+    # Flags of earlier releases and where they went (`adademo_lerobot.cli` answers them in one line).
+    MOVED_FLAGS: ClassVar[dict[str, str]] = {
+        "target_successes": "strategy.target_successes",
+        "max_demos_per_task": "strategy.max_demos_per_task",
+        "max_eval_episodes_per_task": "strategy.max_eval_episodes_per_task",
+    }
+
     def validate(self) -> None:
         """Checks of the flags alone (answered before LeRobot is imported: `adademo_lerobot.cli`)."""
         if self.robot is None:
@@ -106,18 +123,23 @@ class RecordConfig:
             raise AdaDemoError("--teleop.type is required (the person's teleoperator, e.g. so101_leader)")
         if self.policy.path is None:
             raise AdaDemoError("--policy.path is required (the policy whose failures the round answers)")
+        self.strategy.validate()
+        self.strategy.check_one_round("adademo-record")
+        if not self.strategy.answers_failures_only():
+            paying = " with --strategy.rollout_cost" if self.strategy.type == "budgeted" else ""
+            raise AdaDemoError(
+                f"--strategy.type={self.strategy.type}{paying} takes demonstrations from fresh initial states, "
+                "which needs a simulated round (adademo-expand, adademo-run); adademo-record answers the policy's "
+                f"failed episodes: use --strategy.type={' or '.join(StrategyConfig.answering_failures_only())}"
+                + (" (without --strategy.rollout_cost)" if paying else "")
+            )
         if self.dataset.root is None or not has_dataset(self.dataset.root):
             raise AdaDemoError(
                 f"no LeRobot dataset at --dataset.root={self.dataset.root} (the dataset the policy was trained on, "
                 "recorded with this robot, e.g. by lerobot-record)"
             )
-        for flag in ("target_successes", "max_demos_per_task", "max_attempts"):
-            if getattr(self, flag) < 1:
-                raise AdaDemoError(f"--{flag} must be >= 1, got {getattr(self, flag)}")
-        if self.max_eval_episodes_per_task is not None and self.max_eval_episodes_per_task < 1:
-            raise AdaDemoError(
-                f"--max_eval_episodes_per_task must be >= 1, got {self.max_eval_episodes_per_task}"
-            )
+        if self.max_attempts < 1:
+            raise AdaDemoError(f"--max_attempts must be >= 1, got {self.max_attempts}")
         if self.dataset.episode_time_s <= 0:
             raise AdaDemoError(f"--dataset.episode_time_s must be > 0, got {self.dataset.episode_time_s}")
         if self.judge not in JUDGES:
@@ -273,26 +295,43 @@ def predicted_demos(rate: float | None, target: int, cap: int) -> int:
     return cap if rate is None else planned_demos(target, rate, cap)
 
 
-def plan_lines(root: Path, round_index: int, tasks: list[str], cfg: RecordConfig) -> list[str]:
-    """Principle A before the person starts: predicted demos and time per task from the latest success rates."""
+def plan_lines(root: Path, round_index: int, tasks: list[str], strategy, episode_time_s: float) -> list[str]:
+    """Principle A before the person starts: predicted demos and time per task from the latest success rates
+    (adademo: N = E/SR - E, capped; budgeted: the budget's first split), for the strategy as it `start`ed."""
     eps = read_episode_metadata(root)
     fps = read_info(root)["fps"]
+    budgeted = isinstance(strategy, BudgetedStrategy)
+    split = strategy.first_split(root, round_index, tasks)[1] if budgeted else {}
     rows, total_s = [], 0.0
     for task in tasks:
-        alpha, beta = prior_from_earlier_rounds(root, round_index, task)
+        alpha, beta = prior_from_earlier_rounds(root, round_index, task, strategy.posterior_decay)
         seen = alpha + beta > 2
         rate = 1 - failure_mean((alpha, beta)) if seen else None
-        n = predicted_demos(rate, cfg.target_successes, cfg.max_demos_per_task)
         lengths = eps.loc[eps.task == task, "length"]
-        episode_s = float(lengths.mean()) / fps if len(lengths) else cfg.dataset.episode_time_s
-        # E successes and about N failures (each answered by one demonstration) at the recorded episode length.
-        seconds = (cfg.target_successes + 2 * n) * episode_s
+        episode_s = float(lengths.mean()) / fps if len(lengths) else episode_time_s
+        if budgeted:  # N demos at failures: about N / P(failure) policy episodes and N demonstrations
+            n = split[task]
+            episodes = n / failure_mean((alpha, beta)) + n
+        else:  # E successes and about N failures, each answered by one demonstration
+            n = predicted_demos(rate, strategy.target_successes, strategy.cap)
+            episodes = strategy.target_successes + 2 * n
+        seconds = episodes * episode_s
         total_s += seconds
         sr = f"{100 * rate:.0f}%" if seen else "unknown (no round yet)"
         rows.append([task, sr, n, f"{episode_s:.1f}", f"{seconds / 60:.1f}"])
+    if budgeted:
+        head = (
+            f"round {round_index} plan (budgeted, B={strategy.budget}, CAP={strategy.cap}): the budget's first "
+            "split by each task's expected failure rate (re-split after every episode), and the time at the "
+            "recorded episode length"
+        )
+    else:
+        head = (
+            f"round {round_index} plan (E={strategy.target_successes}, CAP={strategy.cap}): demos each task will "
+            "likely need, N = E/SR - E, and the time at the recorded episode length"
+        )
     return [
-        f"round {round_index} plan (E={cfg.target_successes}, CAP={cfg.max_demos_per_task}): demos each task will "
-        "likely need, N = E/SR - E, and the time at the recorded episode length",
+        head,
         table(["task", "latest success", "predicted demos", "episode s", "minutes"], rows),
         f"about {total_s / 60:.0f} minutes of episodes, plus resetting scenes",
     ]
@@ -460,110 +499,62 @@ class Session:
                 return demo, attempt, time.perf_counter() - start
         return None, self.cfg.max_attempts, time.perf_counter() - start
 
-    # -- one task ---------------------------------------------------------------------------------------------
-    def run_task(self, task: str) -> TaskRoundRecord:
-        """Algorithm 1's inner loop for one task, the person in it."""
-        cfg = self.cfg
-        target, cap = cfg.target_successes, cfg.max_demos_per_task
-        max_evals = cfg.max_eval_episodes_per_task or default_eval_bound(target, cap)
-        self._recover_demos(task)
+    # -- between episodes -------------------------------------------------------------------------------------
+    def select_task(self, task: str) -> None:
+        """The next episodes are of `task`: a simulated robot switches scenes, a person sets its scene up."""
         if hasattr(self.robot, "select_task"):
             self.robot.select_task(task)
         else:
             self.person.ready(f"next task: {task!r}: set up its scene, then press n")
-        ctx = PersonRound(self)
-        record = ctx.new_record(task, "adademo", target, cap)
-        collect_on_failed_states(ctx, task, record, target, cap, max_evals)
-        return self._with_costs(record)
 
-    def store_answer(
-        self, task: str, failed: dict, demo: Demonstration | None, attempts: int, seconds: float
-    ) -> None:
-        """A failure's answer, appended and journaled: the demonstration (or correction), or that none came."""
-        if demo is None:
-            self.journal.append(
-                {"type": "expert_failure", "task": task, "seed": failed["seed"], "attempts": attempts}
-            )
-            return
+    def append(self, demo: Demonstration) -> None:
+        """A demonstration (or correction) into the dataset, with its provenance, in one transaction."""
         self.dataset.append_recorded(
             self.robot.robot_type, [demo], self.round_index, SOURCE, self.cfg.teleop.type
         )
-        entry = {"type": "demo", "task": task, "seed": demo.seed, "steps": len(demo.frames)}
-        if demo.is_correction:
-            entry["start_step"] = demo.start_step
-        self.journal.append({**entry, "seconds": round(seconds, 3)})
-
-    def _recover_demos(self, task: str) -> None:
-        """A stop between a demonstration's append and its journal entry: the dataset has it, so journal it."""
-        eps = read_episode_metadata(self.root)
-        mine = eps[
-            (eps.task == task)
-            & (eps["adademo/round"] == self.round_index)
-            & eps["adademo/source"].isin([SOURCE, CORRECTION_SOURCE])
-        ]
-        for seed, length, source, step in zip(
-            mine["adademo/seed"],
-            mine["length"],
-            mine["adademo/source"],
-            mine["adademo/start_step"],
-            strict=True,
-        ):
-            if int(seed) not in self.journal.demos(task):
-                entry = {
-                    "type": "demo",
-                    "task": task,
-                    "seed": int(seed),
-                    "steps": int(length),
-                    "seconds": 0.0,
-                }
-                if source == CORRECTION_SOURCE:
-                    entry["start_step"] = int(step)
-                self.journal.append(entry)
-
-    def _with_costs(self, record: TaskRoundRecord) -> TaskRoundRecord:
-        """The ledger's figures the loop does not count: every policy episode run and the person's time."""
-        evals = list(self.journal.evaluations(record.task).values())
-        demos = list(self.journal.demos(record.task).values())
-        policy_s = sum(e.get("seconds", 0.0) for e in evals)
-        demo_s = sum(d.get("seconds", 0.0) for d in demos)
-        record.policy_path = str(self.cfg.policy.path)
-        record.eval_episodes_run = len(evals)
-        record.eval_env_steps = sum(e["steps"] for e in evals)
-        record.wall_seconds = round(policy_s + demo_s, 1)
-        record.extra = {
-            "robot": self.robot.robot_type,
-            "teleop": self.cfg.teleop.type,
-            "person_seconds": {"policy_episodes": round(policy_s, 1), "demonstrations": round(demo_s, 1)},
-        }
-        return record
 
 
-class PersonRound:
-    """The round context Algorithm 1's inner loop (`collect_on_failed_states`) talks to, with a person and a robot
-    behind it. Evaluating a state is a policy episode the person judges, or takes over (its correction is
+class PersonRound(JournaledRound):
+    """Algorithm 1's round context (`algorithm.InnerLoop`, as `RoundContext` is in a simulated round) with a person
+    and a robot behind it. Evaluating a state is a policy episode the person judges, or takes over (the correction is
     recorded at once, while the robot is where the person took over); a demonstration is the person's, from the
-    failed episode's start, or that correction. Everything is journaled first: after a stop, the loop runs again
-    over the same states and reuses what was done."""
+    failed episode's start, or that correction. Its books are the simulated round's (`JournaledRound`): everything
+    is journaled first, so after a stop the strategy runs again over the same states and reuses what was done."""
 
     batch_size = 1  # one robot, one episode at a time
+    seed: int
+    round_index: int
+    tasks: list[str]  # --tasks, in order
+    root: Path
 
-    def __init__(self, session: Session):
+    def __init__(self, session: Session, tasks: list[str]):
         self.session, self.journal = session, session.journal
         self.seed, self.round_index = session.cfg.seed, session.round_index
-        self._corrections: dict[int, tuple[Demonstration | None, float]] = {}
+        self.tasks, self.root = tasks, session.root
+        self.policy_path = str(session.cfg.policy.path)
+        self._lock = threading.RLock()
+        self._committed = committed_demos(self.root, self.round_index)
+        self._corrections: dict[tuple[str, int], tuple[Demonstration | None, float]] = {}
+        self._task: str | None = None  # the task whose scene is up
 
-    def new_record(self, task: str, strategy: str, target_successes: int, cap: int) -> TaskRoundRecord:
-        return TaskRoundRecord(self.round_index, task, strategy, target_successes, cap, None, None)
+    def _use(self, task: str) -> None:
+        if task != self._task:
+            self.session.select_task(task)
+            self._task = task
+
+    def run_tasks(self, work) -> list[TaskRoundRecord]:
+        return [work(task) for task in self.tasks]
 
     def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
         outcomes = []
         for seed in seeds:
             entry = self.journal.evaluations(task).get(seed)
             if entry is None:
+                self._use(task)
                 entry = self.session.policy_episode(task, seed)
-                self.journal.append(entry)  # first: a stop during the correction leaves a failure to answer
+                self._journal(entry)  # first: a stop during the correction leaves a failure to answer
                 if "takeover_step" in entry:
-                    self._corrections[seed] = self.session.correction(task, entry)
+                    self._corrections[(task, seed)] = self.session.correction(task, entry)
             outcomes.append(Outcome(seed, bool(entry["success"])))
         return outcomes
 
@@ -571,26 +562,43 @@ class PersonRound:
         """A person does one demonstration at a time, when asked (`collect_demo`)."""
 
     def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
-        demos, gave_up = self.journal.demos(task), self.journal.expert_failures(task)
-        if seed not in demos and seed not in gave_up:  # not answered yet (also after a stop)
-            failed = self.journal.evaluations(task)[seed]
-            if seed in self._corrections:
-                demo, seconds = self._corrections.pop(seed)
-                self.session.store_answer(task, failed, demo, 1, seconds)
-            else:  # from the episode's start (a correction a stop interrupted too: the robot has moved since)
-                self.session.store_answer(task, failed, *self.session.demonstration(task, failed))
-        if seed in demos:
-            entry = demos[seed]
-            record.demos_added += 1
-            record.collection_env_steps += entry["steps"]
-            record.demo_frames += entry["steps"]
-            record.corrections += "start_step" in entry
-            return True
-        record.expert_failures += 1
-        return False
+        reused = self.reuse_answer(task, seed, record)  # answered before a stop
+        if reused is not None:
+            return reused
+        failed = self.journal.evaluations(task)[seed]
+        if (task, seed) in self._corrections:
+            (demo, seconds), attempts = self._corrections.pop((task, seed)), 1
+        else:  # from the episode's start (a correction a stop interrupted too: the robot has moved since)
+            self._use(task)
+            demo, attempts, seconds = self.session.demonstration(task, failed)
+        if demo is None:
+            entry = {
+                "type": "expert_failure",
+                "task": task,
+                "seed": int(seed),
+                "attempts": attempts,
+                "initial_state": failed["initial_state"],
+            }
+            return self.store_answer(task, entry, record)
+        entry = {**demo_entry(task, seed, demo, len(demo.frames)), "seconds": round(seconds, 3)}
+        return self.store_answer(task, entry, record, lambda: self.session.append(demo))
 
     def progress(self, task: str, record: TaskRoundRecord) -> None:
         pass
+
+    def with_costs(self, record: TaskRoundRecord) -> TaskRoundRecord:
+        """The ledger's figures the strategy does not count: every policy episode run and the person's time."""
+        self.evaluation_cost(record.task, record)
+        policy_s = sum(e.get("seconds", 0.0) for e in self.journal.evaluations(record.task).values())
+        demo_s = sum(d.get("seconds", 0.0) for d in self.journal.demos(record.task).values())
+        record.wall_seconds = round(policy_s + demo_s, 1)
+        record.extra = {
+            **record.extra,
+            "robot": self.session.robot.robot_type,
+            "teleop": self.session.cfg.teleop.type,
+            "person_seconds": {"policy_episodes": round(policy_s, 1), "demonstrations": round(demo_s, 1)},
+        }
+        return record
 
 
 def slug(text: str) -> str:
@@ -618,6 +626,7 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
     use_video = any(ft.get("dtype") == "video" for ft in info.get("features", {}).values())
     features = robot_features(robot, use_video)
     check_recorded_with(root, robot, features)
+    check_writable_features(root, features, "adademo-record")  # e.g. LeRobot's DAgger `intervention`: carried
     check_policy(cfg.policy.path, features)
     known = dataset_tasks(root)
     tasks = [t.strip() for t in cfg.tasks.split(",")] if cfg.tasks else known
@@ -626,19 +635,25 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
         raise AdaDemoError(f"--tasks: {unknown} not in the dataset (its tasks: {known})")
     with exclusive_use(root, "adademo-record"):  # one command at a time on a dataset
         round_index = next_round(root)
-        print("\n".join(plan_lines(root, round_index, tasks, cfg)), flush=True)
+        strategy = cfg.strategy.build(1)
         person = make_person(cfg.judge, teleop)
         session = None
         try:
             robot.connect()
             teleop.connect()
             session = Session(cfg, robot, teleop, person, features, round_index)
+            ctx = PersonRound(session, tasks)
+            started = session.journal.of_type("start")
+            decided = strategy.start(ctx, started[0] if started else None)
+            print(
+                "\n".join(plan_lines(root, round_index, tasks, strategy, cfg.dataset.episode_time_s)),
+                flush=True,
+            )
             session.journal.start(
                 {
-                    "strategy": "adademo",
+                    "strategy": strategy.name,
+                    **decided,
                     "source": SOURCE,
-                    "target_successes": cfg.target_successes,
-                    "max_demos_per_task": cfg.max_demos_per_task,
                     "policy_path": str(cfg.policy.path),
                     "robot": robot.robot_type,
                     "teleop": cfg.teleop.type,
@@ -646,7 +661,7 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
                     **({"demo_start": cfg.demo_start} if cfg.demo_start != "initial" else {}),
                 }
             )
-            records = [session.run_task(task) for task in tasks]
+            records = [ctx.with_costs(r) for r in strategy.expand(ctx)]
         except StopRecording:
             raise KeyboardInterrupt from None
         except ConnectionError as err:  # LeRobot's DeviceNotConnectedError, a serial port gone, ...
@@ -659,6 +674,7 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
             for device in (teleop, robot):
                 if device.is_connected:
                     device.disconnect()
+        check_ledger_matches_dataset(root, round_index, records)
         append_ledger(root, records)
         session.journal.finish()
         print(

@@ -69,9 +69,9 @@ class TaskRoundRecord:
     demos_per_task: int | None
     policy_path: str | None
     eval_episodes: int = 0  # episodes the strategy consumed (Algorithm 1's evaluations)
-    eval_episodes_run: int = (
-        0  # every episode evaluated, including any run past the stopping point (real cost)
-    )
+    # Every policy episode the round ran (the rollouts of the cost model, `costs.py`); the same as `eval_episodes`,
+    # since evaluations never run past the stopping point.
+    eval_episodes_run: int = 0
     successes: int = 0
     failures: int = 0
     demos_added: int = 0

@@ -19,10 +19,19 @@ import pandas as pd
 from matplotlib.figure import Figure  # no pyplot: drawing into a file needs no GUI backend, and sets none
 
 from adademo_lerobot.configs import ReportConfig
-from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.dataset.interventions import intervention_flags
+from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.ledger import read_ledger
-from adademo_lerobot.report_costs import COSTS, break_even_summary, cost_lines, cost_rows, cost_table, pct
+from adademo_lerobot.report_costs import (
+    COSTS,
+    break_even_summary,
+    cost_lines,
+    cost_rows,
+    cost_table,
+    pct,
+    person_lines,
+)
 from adademo_lerobot.tables import table
 
 
@@ -51,6 +60,11 @@ class RunResults:
         out["episodes"] = out["expert episodes"] + out["rollouts"]
         out["episodes high"] = out["expert episodes high"] + out["rollouts"]
         return out
+
+
+def has_interventions(root: Path | None) -> bool:
+    """Whether a run's dataset has LeRobot's DAgger `intervention` flags (its person's work is reported)."""
+    return root is not None and has_dataset(root) and intervention_flags(root) is not None
 
 
 def describe_start(begun: dict) -> str:
@@ -393,6 +407,11 @@ def write_report(run_dirs: list[Path], out_dir: Path, uniform: RunResults | None
             f"![allocation](allocation_{run.name}.png) ![per-task success](success_{run.name}.png)",
             "",
             *failure_lines(run, out_dir),
+            *(
+                [*person_lines(run.dataset_root), ""]
+                if i == 0 and has_interventions(run.dataset_root)
+                else []
+            ),
         ]
     sections += ["## Evaluation cost", "", "![evaluation cost](eval_cost.png)", ""]
     path = out_dir / "report.md"
@@ -400,9 +419,26 @@ def write_report(run_dirs: list[Path], out_dir: Path, uniform: RunResults | None
     return path
 
 
-def run_report(cfg: ReportConfig) -> Path:
+def dataset_report(root: Path, output_dir: str | None) -> Path | None:
+    """`--dataset_root`: the person's work in a dataset (no run folder), printed, and written to `output_dir`."""
+    if not has_dataset(root):
+        raise AdaDemoError(f"--dataset_root: no LeRobot dataset at {root} (missing meta/info.json)")
+    lines = person_lines(root)
+    print("\n".join(lines))
+    if output_dir is None:
+        return None
+    path = Path(output_dir) / "report.md"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(["# AdaDemo report", "", *lines, ""]))
+    print(f"report: {path}")
+    return path
+
+
+def run_report(cfg: ReportConfig) -> Path | None:
+    if cfg.run_dir is None and cfg.dataset_root is not None:
+        return dataset_report(Path(cfg.dataset_root), cfg.output_dir)
     if cfg.run_dir is None:
-        raise AdaDemoError("--run_dir is required")
+        raise AdaDemoError("--run_dir is required (or --dataset_root, for a dataset recorded on a robot)")
     out = Path(cfg.output_dir) if cfg.output_dir else Path(cfg.run_dir) / "report"
     run = load_run(Path(cfg.run_dir))
     # A bad --compare_to is refused before anything is written (getattr: ReportConfig's field, configs.py).

@@ -4,11 +4,17 @@ rollout cost against a Uniform run."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
 import pandas as pd
 
 from adademo_lerobot import costs
+from adademo_lerobot.dataset.interventions import intervention_flags, segments
+from adademo_lerobot.dataset.layout import COL_ROUND, COL_SOURCE, CORRECTION_SOURCE, POLICY_SOURCE
+from adademo_lerobot.dataset.metadata import read_episode_metadata, read_info
+from adademo_lerobot.ledger import read_ledger
 from adademo_lerobot.tables import table
 
 if TYPE_CHECKING:
@@ -145,3 +151,75 @@ def break_even_summary(run: RunResults, uniform: RunResults | None) -> list[str]
         }
 
     return costs.break_even_lines(curve(run), curve(uniform))
+
+
+PERSON_COLUMNS = [
+    "episodes",
+    "demonstrations",
+    "corrections",
+    "person frames",
+    "person seconds",
+    "policy frames",
+    "policy seconds",
+]
+
+
+def person_work(root: str | Path) -> pd.DataFrame:
+    """Per dataset round and task, what a person recorded in the dataset at `root`: demonstrations, corrections
+    (each segment a person drove inside a policy episode: LeRobot's DAgger `intervention` flags), the frames
+    and recorded seconds the person drove, and the policy's own frames kept beside them. Without the flags every
+    episode but the policy's own is the person's (or the expert's) throughout."""
+    root = Path(root)
+    eps = read_episode_metadata(root)
+    fps = float(read_info(root)["fps"])
+    if not len(eps):
+        return pd.DataFrame(columns=["round", "task", *PERSON_COLUMNS])
+    flags = intervention_flags(root)
+    if flags is None:  # the whole of every episode but the policy's own
+        flags = np.zeros(int(eps["dataset_to_index"].max()), dtype=bool)
+        for _, ep in eps[eps[COL_SOURCE] != POLICY_SOURCE].iterrows():
+            flags[int(ep["dataset_from_index"]) : int(ep["dataset_to_index"])] = True
+    units = segments(flags, eps)
+    units["frames"] = units["dataset_to_index"] - units["dataset_from_index"]
+    units = units.join(eps[[COL_ROUND, COL_SOURCE]], on="episode_index")
+    rows = []
+    for (r, task), g in units.groupby([COL_ROUND, "task"], sort=True):
+        person, policy = g[g.person], g[~g.person]
+        episodes = g.drop_duplicates("episode_index")
+        rows.append(
+            {
+                "round": int(r),
+                "task": task,
+                "episodes": len(episodes),
+                "demonstrations": int((~episodes[COL_SOURCE].isin([CORRECTION_SOURCE, POLICY_SOURCE])).sum()),
+                "corrections": int((person[COL_SOURCE] == CORRECTION_SOURCE).sum()),
+                "person frames": int(person.frames.sum()),
+                "person seconds": round(float(person.frames.sum()) / fps, 1),
+                "policy frames": int(policy.frames.sum()),
+                "policy seconds": round(float(policy.frames.sum()) / fps, 1),
+            }
+        )
+    return pd.DataFrame(rows, columns=["round", "task", *PERSON_COLUMNS])
+
+
+def person_lines(root: str | Path) -> list[str]:
+    """The person's work in a dataset (`person_work`), per round and task, with the time at the robot each
+    adademo-record round's ledger counted (policy episodes and demonstrations, scene resets not included)."""
+    work = person_work(root)
+    at_robot = {
+        (r["round"], r["task"]): r["extra"]["person_seconds"]
+        for r in read_ledger(Path(root))
+        if "person_seconds" in r.get("extra", {})
+    }
+    rows = []
+    for _, w in work.iterrows():
+        spent = at_robot.get((w["round"], w["task"]))
+        minutes = "-" if spent is None else f"{sum(spent.values()) / 60:.1f}"
+        rows.append([int(w["round"]), w["task"], *(w[c] for c in PERSON_COLUMNS), minutes])
+    return [
+        f"The person's work in {root}, per dataset round and task (corrections: the segments a person drove inside "
+        "a policy episode, from LeRobot's `intervention` flags where the dataset has them; person and policy "
+        "frames and their recorded seconds; minutes at the robot: what an adademo-record round's ledger counted):",
+        "",
+        table(["round", "task", *PERSON_COLUMNS, "minutes at the robot"], rows, aligned=False),
+    ]

@@ -22,6 +22,7 @@ import dataclasses
 import json
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -173,10 +174,13 @@ class RunConfig(ExecutionArgs):
 
 
 class RunState:
-    """Finished stages of a run, plus the settings that define it (a rerun must keep them)."""
+    """Finished stages of a run, plus the settings that define it (a rerun must keep them). `on_stage` hears
+    `[done] NAME` for a stage an earlier invocation finished and `[run]  NAME` for one that runs (the command
+    prints them)."""
 
-    def __init__(self, run_dir: Path, settings: dict):
+    def __init__(self, run_dir: Path, settings: dict, on_stage: Callable[[str], None] | None = None):
         self.path = run_dir / "run_state.json"
+        self._on_stage = on_stage or (lambda line: None)
         if self.path.exists():
             state = json.loads(self.path.read_text())
             for key, default in SETTINGS_ADDED_LATER.items():  # a run started before the setting existed
@@ -218,9 +222,9 @@ class RunState:
         A stage's `seconds` add up every invocation that worked on it, so a resumed stage reports its whole
         cost; time lost to a kill that gave no chance to record it (SIGKILL, power) is not counted."""
         if name in self.done:
-            print(f"[done] {name}")
+            self._on_stage(f"[done] {name}")
             return self.done[name]["result"]
-        print(f"[run]  {name}")
+        self._on_stage(f"[run]  {name}")
         start = time.perf_counter()
         earlier = self.interrupted.get(name, 0.0)
         try:
@@ -316,15 +320,16 @@ class RunData:
         return cls(run_dir / "dataset", f"local/{run_dir.name}", 0, None)
 
 
-def run(cfg: RunConfig) -> Path:
+def run(cfg: RunConfig, on_ledger_written: Callable[[int], None] | None = None) -> Path:
     """Algorithm 1 end to end. Every stage is run through `state.stage`, which skips a stage a previous
-    invocation finished (and returns its result): rerunning the command resumes."""
+    invocation finished (and returns its result): rerunning the command resumes. `on_ledger_written`: as in
+    `run_expand`, for every expansion round."""
     cfg.validate()
     run_dir = Path(cfg.run_dir)
     suite, start = checked_suite_and_start(cfg, run_dir)  # everything refused before anything is written
     run_dir.mkdir(parents=True, exist_ok=True)
     with exclusive_use(run_dir, "adademo-run"), Episodes(cfg, suite) as episodes:
-        state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()))
+        state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()), on_stage=print)
         if cfg.dataset.repo_id is not None:  # the user's data
             data = RunData.of_stage(state.stage("start", begin_from, cfg, start, run_dir))
         else:
@@ -333,7 +338,7 @@ def run(cfg: RunConfig) -> Path:
         checkpoint = data.checkpoint or Path(state.stage("train-0", train_round, cfg, run_dir, data, 0))
         state.stage("eval-0", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, 0)
         for i in range(1, cfg.rounds + 1):
-            state.stage(f"expand-{i}", expand_round, cfg, episodes, data, checkpoint, i)
+            state.stage(f"expand-{i}", expand_round, cfg, episodes, data, checkpoint, i, on_ledger_written)
             checkpoint = Path(state.stage(f"train-{i}", train_round, cfg, run_dir, data, i, checkpoint))
             state.stage(f"eval-{i}", evaluate_round, cfg, suite, episodes, run_dir, checkpoint, i)
         from adademo_lerobot.report import write_report
@@ -503,7 +508,14 @@ def evaluate_round(
     return {"average_success": float(table.success_rate.iloc[-1])}
 
 
-def expand_round(cfg: RunConfig, episodes: Episodes, data: RunData, checkpoint: Path, i: int) -> dict:
+def expand_round(
+    cfg: RunConfig,
+    episodes: Episodes,
+    data: RunData,
+    checkpoint: Path,
+    i: int,
+    on_ledger_written: Callable[[int], None] | None = None,
+) -> dict:
     """The run's expansion round i, the dataset's round base + i (after its earlier rounds): the one truth
     handed to `run_expand`."""
     r = data.base_round + i
@@ -511,7 +523,13 @@ def expand_round(cfg: RunConfig, episodes: Episodes, data: RunData, checkpoint: 
         eps = read_episode_metadata(data.root)
         return {"demos_added": eps[eps["adademo/round"] == r].groupby("task").size().astype(int).to_dict()}
     expand_cfg = cfg.expand_config(i, data.root, data.repo_id, checkpoint)
-    records = run_expand(expand_cfg, round_in_run=i, round_index=r, executor=episodes.get())
+    records = run_expand(
+        expand_cfg,
+        round_in_run=i,
+        round_index=r,
+        executor=episodes.get(),
+        on_ledger_written=on_ledger_written,
+    )
     return {"demos_added": {r.task: r.demos_added for r in records}}
 
 

@@ -27,6 +27,7 @@ from tqdm import tqdm
 from adademo_lerobot import lerobot_training
 from adademo_lerobot.configs import TrainCommandFlags
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
+from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
 from adademo_lerobot.dataset.metadata import read_episode_metadata, try_load_suite_config
 from adademo_lerobot.dataset.store import recover_interrupted_write
 from adademo_lerobot.dataset.video import video_backend
@@ -262,6 +263,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     )
     if cfg.resume:
         lerobot_training.resume_after_prepare(cfg, accelerator, policy, optimizer, lr_scheduler)
+    flags = intervention_flags(root)  # LeRobot's DAgger data: who drove each frame
     suite_cfg = try_load_suite_config(
         root
     )  # training needs only LeRobot's format; the suite is recorded if known
@@ -269,13 +271,33 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         "sampler": cfg.sampler,
         "min_task_weight": cfg.min_task_weight,
         "sampler_alpha": cfg.sampler_alpha,
+        **({"autonomous_weight": cfg.autonomous_weight} if flags is not None else {}),
         "episodes": int(len(episodes)),
         "frames": int(dataset.num_frames),
         "episodes_per_task": {k: int(v) for k, v in episodes["task"].value_counts().items()},
         "suite": suite_cfg.to_dict() if suite_cfg else None,
     }
     parts = (policy, optimizer, lr_scheduler, preprocessor, postprocessor)
-    return training_loop(cfg, dataset, dataloader, parts, accelerator, step, info)
+    mask = policy_action_mask(dataset, flags) if flags is not None and cfg.autonomous_weight == 0 else None
+    return training_loop(cfg, dataset, dataloader, parts, accelerator, step, info, mask)
+
+
+def policy_action_mask(dataset, flags: np.ndarray):
+    """For LeRobot's DAgger data, imitating the person's frames only: the steps of an action chunk that are the
+    policy's own frames (after the person handed back) are marked as padding (`action_is_pad`), which ACT's loss
+    leaves out (and Diffusion's with `--policy.do_mask_loss_for_padding=true`), as it does past an episode's end."""
+    deltas = (dataset.reader.delta_indices or {}).get("action")
+    if deltas is None:
+        return None
+    person = torch.as_tensor(flags, dtype=torch.bool)
+    deltas = torch.as_tensor(deltas, dtype=torch.int64)
+
+    def mask(batch: dict) -> None:
+        if "action_is_pad" in batch:
+            query = (batch["index"].reshape(-1, 1).to(torch.int64) + deltas).clamp(0, len(person) - 1)
+            batch["action_is_pad"] = batch["action_is_pad"] | ~person[query]
+
+    return mask
 
 
 def build_policy(cfg: AdaDemoTrainConfig, dataset):
@@ -317,9 +339,11 @@ def build_policy(cfg: AdaDemoTrainConfig, dataset):
 
 def weighted_loader(cfg: AdaDemoTrainConfig, dataset, episodes, scheme, step: int, accelerator):
     """The DataLoader of principle C: frames drawn with the sampling scheme's episode weights, from where a
-    resumed run stopped, batches from memory for datasets without camera frames."""
+    resumed run stopped, batches from memory for datasets without camera frames. In LeRobot's DAgger data the
+    units are the person's segments (and the policy's, with --autonomous_weight > 0)."""
     drop = int(getattr(cfg.policy, "drop_n_last_frames", 0) or 0)
-    weights = frame_weights(scheme, episodes, dataset.num_frames, drop)
+    units = imitation_units(cfg.dataset.root, episodes, cfg.autonomous_weight)
+    weights = frame_weights(scheme, units, dataset.num_frames, drop)
     # Under `accelerate launch` every process iterates the same draws and keeps every n-th batch
     # (accelerate's BatchSamplerShard), so the sampler draws n times the samples and skips n times as many.
     n = accelerator.num_processes
@@ -351,9 +375,10 @@ def weighted_loader(cfg: AdaDemoTrainConfig, dataset, episodes, scheme, step: in
 
 
 def training_loop(
-    cfg: AdaDemoTrainConfig, dataset, dataloader, parts, accelerator, step: int, info: dict
+    cfg: AdaDemoTrainConfig, dataset, dataloader, parts, accelerator, step: int, info: dict, mask=None
 ) -> Path:
-    """lerobot-train's loop around `update_policy` (metrics, wandb, checkpoints), for our loader."""
+    """lerobot-train's loop around `update_policy` (metrics, wandb, checkpoints), for our loader; `mask` marks
+    the action targets not to imitate (`policy_action_mask`)."""
     from lerobot.scripts.lerobot_train import update_policy
     from lerobot.utils.logging_utils import AverageMeter
 
@@ -392,6 +417,8 @@ def training_loop(
         ) in camera_keys:  # LeRobot's dataset returns frames as uint8 (as stock lerobot-train converts them)
             if key in batch and batch[key].dtype == torch.uint8:
                 batch[key] = batch[key].to(torch.float32) / 255.0
+        if mask is not None:
+            mask(batch)
         batch = preprocessor(batch)
         tracker.dataloading_s = time.perf_counter() - data_start
         tracker, output = update_policy(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+import os
 import platform
 import subprocess
 import sys
@@ -99,3 +101,37 @@ def grow_dataset(root: Path, episodes: int, tasks: str = "reach-v3,push-v3", uni
         ds.append(suite, batch(n, written), 0, "initial", collector.name)
         written += n
     return ds, suite, collector, batch
+
+
+class StepClock:
+    """Times the simulator's own step inside our env (`env_class._raw_step`) while the loop runs, so loop / raw
+    is the share of the loop's time the simulator gets (measurement only)."""
+
+    def __init__(self, env_class: type):
+        self.seconds, self.steps, stock = 0.0, 0, env_class._raw_step
+        clock = self
+
+        def timed(env, action):
+            start = time.perf_counter()
+            out = stock(env, action)
+            clock.seconds += time.perf_counter() - start
+            clock.steps += 1
+            return out
+
+        env_class._raw_step = timed
+
+    def reset(self) -> None:
+        self.seconds, self.steps = 0.0, 0
+
+
+def loop_speed_args(episodes: int, episodes_help: str, demos_help: str) -> argparse.Namespace:
+    """The flags of the loop-speed benchmarks (`--episodes`, `--demos`), then one process on one thread."""
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--episodes", type=int, default=episodes, help=episodes_help)
+    parser.add_argument("--demos", type=int, default=20, help=demos_help)
+    args = parser.parse_args()
+    os.environ["OMP_NUM_THREADS"] = "1"
+    import torch
+
+    torch.set_num_threads(1)
+    return args

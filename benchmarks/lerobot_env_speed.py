@@ -11,39 +11,15 @@ thread. Writes benchmarks/results/lerobot_env_speed.md.
 
 from __future__ import annotations
 
-import argparse
-import os
 import tempfile
 import time
 from pathlib import Path
 
-from _common import BIN, RESULTS, machine_line, sh, train_small_act
+from _common import BIN, RESULTS, StepClock, loop_speed_args, machine_line, sh, train_small_act
 
 TASK = "SO101PickPlace-v0"
 SUITE = ["--suite.type=lerobot_env", "--suite.env.type=so101", "--suite.env.random_block_position=true"]
 EXPERT = "adademo_lerobot.contrib.so101:pick_place"
-
-
-class RawClock:
-    """Times the plugin's own `env.step` inside our env (measurement only)."""
-
-    def __init__(self):
-        from adademo_lerobot.suites.lerobot_env import LeRobotEnvTaskEnv
-
-        self.seconds, self.steps, stock = 0.0, 0, LeRobotEnvTaskEnv._raw_step
-        clock = self
-
-        def timed(env, action):
-            start = time.perf_counter()
-            out = stock(env, action)
-            clock.seconds += time.perf_counter() - start
-            clock.steps += 1
-            return out
-
-        LeRobotEnvTaskEnv._raw_step = timed
-
-    def reset(self) -> None:
-        self.seconds, self.steps = 0.0, 0
 
 
 def stock_rate(steps: int = 3000) -> float:
@@ -63,14 +39,7 @@ def stock_rate(steps: int = 3000) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--episodes", type=int, default=30, help="evaluation episodes")
-    parser.add_argument("--demos", type=int, default=20, help="expert episodes")
-    args = parser.parse_args()
-    os.environ["OMP_NUM_THREADS"] = "1"
-    import torch
-
-    torch.set_num_threads(1)
+    args = loop_speed_args(30, "evaluation episodes", "expert episodes")
     from adademo_lerobot.collectors import CallableCollectorConfig
     from adademo_lerobot.executors import LocalExecutor
     from adademo_lerobot.fixed_set import evaluate_fixed_set
@@ -85,7 +54,9 @@ def main() -> None:
            f"--collector.entry={EXPERT}", "--episodes_per_task=4", "--dataset.repo_id=local/bench",
            f"--dataset.root={tmp / 'ds'}")  # fmt: skip
         ckpt = str(train_small_act(tmp / "ds", tmp / "train", steps=20))
-        clock = RawClock()
+        from adademo_lerobot.suites.lerobot_env import LeRobotEnvTaskEnv
+
+        clock = StepClock(LeRobotEnvTaskEnv)  # the plugin's own env.step
         local = LocalExecutor(suite, CallableCollectorConfig(entry=EXPERT), batch_size=10, device="cpu",
                               torch_threads=1)  # fmt: skip
         local.use_policy(ckpt)

@@ -18,37 +18,14 @@ Writes benchmarks/results/loop_speed.md.
 
 from __future__ import annotations
 
-import argparse
 import os
 import tempfile
 import time
 from pathlib import Path
 
-from _common import RESULTS, collect, machine_line, train_small_act
+from _common import RESULTS, StepClock, collect, loop_speed_args, machine_line, train_small_act
 
 TASKS = ["reach-v3", "push-v3", "drawer-open-v3", "pick-place-v3"]
-
-
-class SimClock:
-    """Times the bare MetaWorld step inside our env (measurement only)."""
-
-    def __init__(self):
-        from adademo_lerobot.suites.metaworld import MetaWorldTaskEnv
-
-        self.seconds, self.steps, stock = 0.0, 0, MetaWorldTaskEnv._raw_step
-        clock = self
-
-        def timed(env, action):
-            start = time.perf_counter()
-            out = stock(env, action)
-            clock.seconds += time.perf_counter() - start
-            clock.steps += 1
-            return out
-
-        MetaWorldTaskEnv._raw_step = timed
-
-    def reset(self) -> None:
-        self.seconds, self.steps = 0.0, 0
 
 
 def run_units(executor, suite, ckpt: str, episodes: int, demos: int, seed: int) -> dict:
@@ -98,15 +75,8 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--episodes", type=int, default=40, help="fixed-set episodes per task")
-    parser.add_argument("--demos", type=int, default=20, help="expert episodes per task")
-    args = parser.parse_args()
-    os.environ["OMP_NUM_THREADS"] = "1"
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    import torch
-
-    torch.set_num_threads(1)
+    args = loop_speed_args(40, "fixed-set episodes per task", "expert episodes per task")
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # as the commands do: no network
     from adademo_lerobot.collectors import ScriptedCollectorConfig
     from adademo_lerobot.executors import ExecutionArgs, LocalExecutor, RayArgs, make_executor
     from adademo_lerobot.suites import MetaWorldSuiteConfig, make_suite
@@ -115,7 +85,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         ckpt = str(train_small_act(collect(tmp / "ds", ",".join(TASKS), 3), tmp / "train", steps=20))
-        clock = SimClock()
+        from adademo_lerobot.suites.metaworld import MetaWorldTaskEnv
+
+        clock = StepClock(MetaWorldTaskEnv)  # the bare MetaWorld step
         local = LocalExecutor(suite, ScriptedCollectorConfig(), batch_size=10, device="cpu", torch_threads=1)
         run_units(local, suite, ckpt, 2, 1, seed=99)  # warm-up: first inference and env construction
         clock.reset()

@@ -182,6 +182,27 @@ TINY_ACT_POLICY = [
 TINY_ACT = [*TINY_ACT_POLICY, "--batch_size=8"]
 
 
+def stock_tiny_train(root: Path, output_dir: Path) -> Path:
+    """Two steps of stock `lerobot-train` on the dataset at `root` (a tiny ACT, nothing downloaded); returns the
+    checkpoint's pretrained_model folder."""
+    run_cli(
+        "lerobot-train",
+        "--dataset.repo_id=local/robot",
+        f"--dataset.root={root}",
+        *TINY_ACT_POLICY,
+        "--policy.pretrained_backbone_weights=null",  # no download at run time
+        "--policy.push_to_hub=false",
+        "--batch_size=4",
+        "--steps=2",
+        "--save_freq=2",
+        f"--output_dir={output_dir}",
+        "--num_workers=0",
+        "--env_eval_freq=0",
+        "--wandb.enable=false",
+    )
+    return output_dir / "checkpoints" / "last" / "pretrained_model"
+
+
 @pytest.fixture(scope="session")
 def act_run(reach_push_dataset, tmp_path_factory):
     """A weak ACT (4 steps) trained by `adademo-train` on the reach/push dataset."""

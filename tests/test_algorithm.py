@@ -80,6 +80,29 @@ class ScriptedRound:
         pass
 
 
+@pytest.mark.parametrize("context", ["strategies.base:RoundContext", "record:PersonRound"])
+def test_both_round_contexts_provide_the_inner_loop(context):
+    """A simulated round and a person's are the same `InnerLoop` (members and their parameters), and keep their
+    books in the same place."""
+    import importlib
+    import inspect
+
+    from adademo_lerobot.algorithm import InnerLoop
+    from adademo_lerobot.strategies.bookkeeping import JournaledRound
+
+    module, name = context.split(":")
+    cls = getattr(importlib.import_module(f"adademo_lerobot.{module}"), name)
+    assert issubclass(cls, JournaledRound)
+    for member in InnerLoop.__protocol_attrs__:
+        declared = any(member in getattr(k, "__annotations__", {}) for k in cls.__mro__)
+        assert hasattr(cls, member) or declared, f"{name} lacks {member}"
+        wanted = getattr(InnerLoop, member, None)
+        if inspect.isfunction(wanted):
+            assert list(inspect.signature(getattr(cls, member)).parameters) == list(
+                inspect.signature(wanted).parameters
+            ), f"{name}.{member}"
+
+
 def run_loop(ctx: ScriptedRound) -> TaskRoundRecord:
     record = ctx.new_record("reach-v3", "adademo", ctx.target_successes, ctx.max_demos_per_task)
     return collect_on_failed_states(
@@ -243,7 +266,8 @@ class BudgetRound:
     posterior_decay: float = 0.5
 
     def __post_init__(self):
-        self.suite = type("Suite", (), {"tasks": list(self.outcomes)})()
+        self.tasks = list(self.outcomes)
+        self.suite = type("Suite", (), {"tasks": self.tasks})()
         self.dataset = type("Dataset", (), {"root": self.root})()
         self.evaluated = {t: [] for t in self.outcomes}
         self.collected = {t: [] for t in self.outcomes}

@@ -15,7 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import BIN, TINY_ACT_POLICY, assert_cli_error, file_digests, requires_rendering, run_cli
+from conftest import (
+    BIN,
+    assert_cli_error,
+    file_digests,
+    requires_rendering,
+    run_cli,
+    stock_tiny_train,
+)
 
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.metadata import read_episode_metadata
@@ -23,6 +30,8 @@ from adademo_lerobot.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.record import predicted_demos
 
 SIM = ["--robot.type=adademo_sim", "--robot.tasks=reach-v3,push-v3", "--robot.image_size=32"]
+# The strategy flags are adademo-expand's (--strategy.type=adademo by default).
+SMALL_ROUND = ["--strategy.target_successes=2", "--strategy.max_demos_per_task=2"]
 
 
 def test_predicted_demos_is_the_papers_estimate_capped():
@@ -56,25 +65,10 @@ def recorded(tmp_path_factory) -> tuple[Path, Path]:
             "--display_data=false",
             "--play_sounds=false",
         )
-    run_cli(
-        "lerobot-train",
-        "--dataset.repo_id=local/robot",
-        f"--dataset.root={root}",
-        *TINY_ACT_POLICY,
-        "--policy.pretrained_backbone_weights=null",  # no download at run time
-        "--policy.push_to_hub=false",
-        "--batch_size=4",
-        "--steps=2",
-        "--save_freq=2",
-        f"--output_dir={tmp / 'train'}",
-        "--num_workers=0",
-        "--env_eval_freq=0",
-        "--wandb.enable=false",
-    )
-    return root, tmp / "train" / "checkpoints" / "last" / "pretrained_model"
+    return root, stock_tiny_train(root, tmp / "train")
 
 
-def record_args(root: Path, checkpoint: Path, *extra: str) -> list[str]:
+def record_args(root: Path, checkpoint: Path, *extra: str, strategy: list[str] = SMALL_ROUND) -> list[str]:
     return [
         *SIM,
         "--teleop.type=adademo_scripted",
@@ -82,8 +76,7 @@ def record_args(root: Path, checkpoint: Path, *extra: str) -> list[str]:
         "--dataset.repo_id=local/robot",
         f"--dataset.root={root}",
         "--dataset.episode_time_s=1",
-        "--target_successes=2",
-        "--max_demos_per_task=2",
+        *strategy,
         *extra,
     ]
 
@@ -155,6 +148,62 @@ def test_a_round_with_a_person_in_the_loop_stopped_then_resumed(recorded, tmp_pa
     assert stock.meta.total_episodes == 4 + len(new)
     assert np.isfinite(stock[len(stock) - 1]["action"].numpy()).all()
     assert not journal.exists()  # the round is finished: its journal is archived with the evaluations
+
+
+@requires_rendering
+def test_a_budgeted_round_with_a_person_spends_exactly_its_budget_every_round(recorded, tmp_path):
+    """`--strategy.type=budgeted --strategy.budget=3`, the simulated run's strategy with a person in it: each of two
+    rounds adds exactly 3 demonstrations at failed policy episodes (the second round counts from its own start, not
+    from the first round's), and the second round's split starts from the first round's outcomes."""
+    source, checkpoint = recorded
+    root = tmp_path / "dataset"
+    subprocess.run(["cp", "-r", str(source), str(root)], check=True)
+    args = record_args(root, checkpoint, strategy=["--strategy.type=budgeted", "--strategy.budget=3"])
+    for round_index in (1, 2):
+        done = run_cli("adademo-record", *args)
+        assert f"round {round_index} plan (budgeted, B=3, CAP=50)" in done.stdout, done.stdout
+        ledger = [r for r in read_ledger(root) if r["round"] == round_index]
+        assert [r["task"] for r in ledger] == ["reach-v3", "push-v3"]
+        assert {r["strategy"] for r in ledger} == {"budgeted"}
+        eps = read_episode_metadata(root)
+        new = eps[eps["adademo/round"] == round_index]
+        assert sum(r["demos_added"] for r in ledger) == len(new) == 3
+        assert {r["extra"]["round_spent"] for r in ledger} == {3}
+        failures = {
+            (e["task"], e["seed"])
+            for e in read_round_evaluations(root, round_index)
+            if e["type"] == "eval" and not e["success"]
+        }
+        answered = list(zip(new.task, new["adademo/seed"], strict=True))
+        assert len(answered) == len(set(answered)) and set(answered) <= failures
+        priors = [r["extra"]["prior"] for r in ledger]
+        if round_index == 1:
+            assert priors == [[1.0, 1.0], [1.0, 1.0]]  # nothing seen before the first round
+        else:  # the first round's outcomes, halved: not the prior of a first round
+            assert priors != [[1.0, 1.0], [1.0, 1.0]]
+    check_dataset_integrity(root)
+
+
+@requires_rendering
+def test_old_strategy_flags_say_their_new_spelling_and_change_nothing(recorded):
+    root, checkpoint = recorded
+    before = file_digests(root)
+    for flag, value in (
+        ("target_successes", 5),
+        ("max_demos_per_task", 10),
+        ("max_eval_episodes_per_task", 30),
+    ):
+        assert_cli_error(
+            "adademo-record",
+            *record_args(root, checkpoint, f"--{flag}={value}", strategy=[]),
+            match=f"--{flag} moved: use --strategy.{flag}",
+        )
+    assert_cli_error(  # a strategy that needs demonstrations from fresh initial states needs a simulated round
+        "adademo-record",
+        *record_args(root, checkpoint, strategy=["--strategy.type=uniform"]),
+        match="use --strategy.type=adademo or budgeted",
+    )
+    assert file_digests(root) == before
 
 
 @requires_rendering

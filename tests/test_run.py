@@ -3,6 +3,7 @@
 import json
 import signal
 import subprocess
+import sys
 import time
 
 import pytest
@@ -134,19 +135,25 @@ def training_step(run_dir, i: int) -> int:
     return json.loads(path.read_text())["step"]
 
 
+# adademo-run's own entry point, run with a hook that kills the process right after round 1's ledger write.
+KILLED_AFTER_THE_LEDGER = """
+import os
+
+import adademo_lerobot.scripts  # noqa: F401  (the process settings of a command)
+from adademo_lerobot.cli import run_command
+from adademo_lerobot.run import RunConfig, run
+
+run_command(lambda cfg: run(cfg, on_ledger_written=lambda r: os.kill(os.getpid(), 9)), RunConfig)
+"""
+
+
 def test_a_kill_between_the_ledger_and_the_journal_end_loses_no_round(tmp_path):
     """The round number is one truth: a kill right after round 1's ledger write, before its journal is closed,
     must not make the rerun skip round 2 (it used to record round 2 as done with no demos)."""
-    import os
-
     run_dir = tmp_path / "run"
     args = ["--config_path=recipes/tiny.yaml", f"--run_dir={run_dir}", "--rounds=2"]
     proc = subprocess.run(
-        [str(BIN / "adademo-run"), *args],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        env={**os.environ, "ADADEMO_TEST_KILL_AFTER_LEDGER": "1"},
+        [sys.executable, "-c", KILLED_AFTER_THE_LEDGER, *args], capture_output=True, text=True, timeout=900
     )
     assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
     dataset = run_dir / "dataset"
@@ -278,10 +285,14 @@ def test_a_resumed_stage_reports_the_seconds_of_every_invocation_that_worked_on_
         time.sleep(0.3)
         raise KeyboardInterrupt
 
+    heard = []  # what adademo-run prints of its stages
     with pytest.raises(KeyboardInterrupt):
-        RunState(tmp_path, settings).stage("train_0", interrupted)
-    resumed = RunState(tmp_path, settings)  # the next invocation of the same command
+        RunState(tmp_path, settings, on_stage=heard.append).stage("train_0", interrupted)
+    resumed = RunState(tmp_path, settings, on_stage=heard.append)  # the next invocation of the same command
     assert resumed.stage("train_0", lambda: time.sleep(0.2) or "checkpoint") == "checkpoint"
     state = json.loads((tmp_path / "run_state.json").read_text())
     assert state["done"]["train_0"]["seconds"] >= 0.45  # 0.3 s interrupted + 0.2 s resumed, not 0.2 s
     assert "interrupted" not in state  # counted once: a later stage starts from zero
+    assert RunState(tmp_path, settings, on_stage=heard.append).stage("train_0", interrupted) == "checkpoint"
+    assert heard == ["[run]  train_0", "[run]  train_0", "[done] train_0"]
+    assert json.loads((tmp_path / "run_state.json").read_text()) == state  # a finished stage is not rerun

@@ -129,3 +129,27 @@ def test_tempered_interpolates_between_task_and_trajectory_uniform():
     assert abs(floored[8:].sum() - 0.3) < 1e-12  # the per-task floor still applies
     with pytest.raises(AdaDemoError, match="sampler_alpha"):
         make_sampling_scheme("tempered", 0.0, 2, alpha=-1)
+
+
+def test_parts_of_episodes_are_weighted_and_keep_the_episode_end_for_dropped_frames():
+    """LeRobot's DAgger data (`dataset/interventions.py`): parts of episodes with their weights; the frames
+    Diffusion cannot train on are those before the end of the episode, not of the part."""
+    parts = pd.DataFrame(
+        {
+            "task": ["a", "a", "a"],
+            "dataset_from_index": [0, 4, 10],
+            "dataset_to_index": [
+                4,
+                10,
+                12,
+            ],  # episode 0: frames 0-9 (person 0-3, policy 4-9); episode 1: 10-11
+            "episode_to_index": [10, 10, 12],
+            "weight": [1.0, 0.0, 1.0],
+        }
+    )
+    w = frame_weights(make_sampling_scheme("trajectory", 0.0, 1), parts, 12)
+    np.testing.assert_allclose(w, [0.125] * 4 + [0.0] * 6 + [0.25] * 2)
+    w = frame_weights(
+        make_sampling_scheme("trajectory", 0.0, 1), parts, 12, drop_n_last_frames=2
+    )  # episode 1 has nothing left
+    np.testing.assert_allclose(w, [0.25] * 4 + [0.0] * 8)

@@ -206,6 +206,8 @@ print("RESULT", code, "torch" in sys.modules, "lerobot" in sys.modules)
             ["--robot.type=x", "--teleop.type=y", "--policy.path=p", "--dataset.root=/d", "--judge=z"],
             2,
         ),
+        ("record", ["--robot.type=x", "--teleop.type=y", "--policy.path=p", "--target_successes=5"], 2),
+        ("record", ["--robot.type=x", "--teleop.type=y", "--policy.path=p", "--strategy.type=uniform"], 2),
     ],
 )
 def test_commands_answer_bad_input_and_help_without_importing_torch(script, args, expected_code):

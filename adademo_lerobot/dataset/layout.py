@@ -27,3 +27,10 @@ CORRECTION_SOURCE = "correction"
 # Episodes that arrived without adademo columns (recorded elsewhere, or edited by LeRobot's tools, which drop
 # extra columns) count as round 0 with this source and no initial state.
 IMPORTED_SOURCE = "imported"
+
+# LeRobot's human-in-the-loop datasets (`lerobot-rollout --strategy.type=dagger`): every frame says whether a
+# person drove it (`intervention`, bool). Their episodes without adademo columns are read as corrections (a person
+# intervened; collector PERSON_COLLECTOR) or as the policy's own (POLICY_SOURCE): `dataset/interventions.py`.
+INTERVENTION_FEATURE = "intervention"
+POLICY_SOURCE = "policy"
+PERSON_COLLECTOR = "teleop"

@@ -20,6 +20,7 @@ import pandas as pd
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from adademo_lerobot.dataset.interventions import apply_provenance, intervention_flags
 from adademo_lerobot.dataset.layout import (
     COL_COLLECTOR,
     COL_INITIAL_STATE,
@@ -136,17 +137,19 @@ def order_by_onehot(root: Path, task_names: list[str], tasks: pd.DataFrame, num_
 def read_episode_metadata(root: str | Path) -> pd.DataFrame:
     """Per-episode metadata (task, length, frame range, `adademo/*` columns) indexed by `episode_index`.
 
-    Episodes without adademo columns are reported as imported (round 0, no initial state)."""
+    Episodes without adademo columns are reported as imported (round 0, no initial state), or, in a dataset whose
+    frames carry LeRobot's `intervention` flag, as corrections and the policy's own (`dataset/interventions.py`)."""
     root = Path(root)
     files = episode_files(root)
     base = ["episode_index", "tasks", "length", "dataset_from_index", "dataset_to_index"]
     if not files:
         return pd.DataFrame(columns=["task", "length", *EPISODE_COLUMNS]).rename_axis("episode_index")
-    tables = []
+    tables, imported = [], []
     suite_name = read_info(root).get("robot_type") or ""
     for f in files:
         names = pq.read_schema(f).names
         df = pq.read_table(f, columns=[c for c in base + list(EPISODE_COLUMNS) if c in names]).to_pandas()
+        imported += [COL_SOURCE not in df.columns] * len(df)
         defaults = {
             COL_ROUND: 0,
             COL_SOURCE: IMPORTED_SOURCE,
@@ -164,6 +167,9 @@ def read_episode_metadata(root: str | Path) -> pd.DataFrame:
             df[COL_START_STEP] = 0
         tables.append(df)
     df = pd.concat(tables, ignore_index=True)
+    flags = intervention_flags(root)
+    if flags is not None:  # LeRobot's DAgger data: corrections and the policy's own episodes
+        apply_provenance(df, flags, np.asarray(imported, dtype=bool))
     df["task"] = [t[0] if len(t) else "" for t in df.pop("tasks")]
     for col in (COL_INITIAL_STATE, COL_START_STATE):
         df[col] = [np.asarray(v, dtype=np.float64) for v in df[col]]

@@ -34,6 +34,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from adademo_lerobot.dataset.features import dataset_features
+from adademo_lerobot.dataset.interventions import (
+    apply_provenance,
+    carried_frame_values,
+    check_writable_features,
+    intervention_flags,
+)
 from adademo_lerobot.dataset.layout import (
     ADADEMO_DIR,
     COL_COLLECTOR,
@@ -57,7 +63,7 @@ from adademo_lerobot.dataset.metadata import (
     load_suite_config,
     read_episode_metadata,
 )
-from adademo_lerobot.dataset.video import quiet_video_encoder, video_backend
+from adademo_lerobot.dataset.video import video_backend
 from adademo_lerobot.errors import AdaDemoError, MachineError, machine_cause
 from adademo_lerobot.files import COMMIT_LOCK, atomic_write_json, atomic_write_text, check_writable_location
 from adademo_lerobot.patching import temporarily_set
@@ -179,19 +185,27 @@ def _episode_files_without_columns(root: Path) -> list[Path]:
     return [f for f in episode_files(root) if not set(EPISODE_COLUMNS) <= set(pq.read_schema(f).names)]
 
 
-def _add_adademo_columns(path: Path, suite_name: str) -> None:
-    """Give the episodes of one meta/episodes file the adademo columns (imported: round 0, no initial state),
-    so that files written before and after share one schema, which stock LeRobot needs to load them."""
+def _add_adademo_columns(path: Path, suite_name: str, flags: np.ndarray | None = None) -> None:
+    """Give the episodes of one meta/episodes file the adademo columns (imported: round 0, no initial state;
+    with LeRobot's `intervention` flags, corrections and the policy's own episodes, as they are read), so that
+    files written before and after share one schema, which stock LeRobot needs to load them."""
     table = pq.read_table(path)
     n = table.num_rows
+    sources, steps, collectors = [IMPORTED_SOURCE] * n, [0] * n, [""] * n
+    if flags is not None:
+        rows = table.select(["dataset_from_index", "dataset_to_index"]).to_pandas()
+        rows = rows.assign(**{COL_SOURCE: sources, COL_START_STEP: steps, COL_COLLECTOR: collectors})
+        apply_provenance(rows, flags, np.ones(n, dtype=bool))
+        sources, steps = rows[COL_SOURCE].tolist(), rows[COL_START_STEP].tolist()
+        collectors = rows[COL_COLLECTOR].tolist()
     values = {
         COL_INITIAL_STATE: pa.array([[] for _ in range(n)], pa.list_(pa.float64())),
         COL_SEED: pa.array([-1] * n, pa.int64()),
         COL_ROUND: pa.array([0] * n, pa.int64()),
-        COL_SOURCE: pa.array([IMPORTED_SOURCE] * n, pa.string()),
-        COL_COLLECTOR: pa.array([""] * n, pa.string()),
+        COL_SOURCE: pa.array(sources, pa.string()),
+        COL_COLLECTOR: pa.array(collectors, pa.string()),
         COL_SUITE: pa.array([suite_name] * n, pa.string()),
-        COL_START_STEP: pa.array([0] * n, pa.int64()),
+        COL_START_STEP: pa.array(steps, pa.int64()),
         COL_START_STATE: pa.array([[] for _ in range(n)], pa.list_(pa.float64())),
     }
     for name, column in values.items():
@@ -345,7 +359,6 @@ class DemoDataset:
     def _write(self, demos, round_index, source, collector, producer, suite) -> list[int]:
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-        quiet_video_encoder()
         creating = not has_dataset(self.root)
         if creating and suite is None:
             raise AdaDemoError(f"no LeRobot dataset at {self.root} to add the recorded episodes to")
@@ -366,12 +379,16 @@ class DemoDataset:
                 )
                 atomic_write_text(write_root / SUITE_FILE, suite.config.to_json())
             else:
+                # Before anything changes: a feature LeRobot's writer wants in every frame and we cannot fill.
+                if demos[0].frames:
+                    check_writable_features(self.root, demos[0].frames[0], "adademo")
                 adopt = _episode_files_without_columns(self.root)
                 suite_missing = suite is not None and not (self.root / SUITE_FILE).exists()
                 rewritten = [*REWRITTEN_META, *(str(f.relative_to(self.root)) for f in adopt)]
                 _begin_write(self.root, rewritten + [SUITE_FILE] * suite_missing)
+                flags = intervention_flags(self.root) if adopt else None
                 for path in adopt:  # episodes that arrived without our columns (LeRobot's tools drop them)
-                    _add_adademo_columns(path, producer)
+                    _add_adademo_columns(path, producer, flags)
                 if suite_missing:  # LeRobot's tools copy no extra files: keep the (rebuilt) suite from now on
                     atomic_write_text(self.root / SUITE_FILE, suite.config.to_json())
                 with _last_episode_row_only(self.root):
@@ -405,10 +422,12 @@ class DemoDataset:
         # One "Map" bar per episode otherwise; disabled after opening, whose loader turns the bars back on.
         datasets.disable_progress_bars()
         indices = []
+        # Features we do not produce but carry, e.g. `intervention`: True (our frames are never the policy's own).
+        carried = carried_frame_values(dataset.meta.features)
         with _no_image_embedding_without_images():
             for demo in demos:
                 for frame in demo.frames:
-                    dataset.add_frame({**frame, "task": demo.task})
+                    dataset.add_frame({**carried, **frame, "task": demo.task})
                 indices.append(dataset.meta.total_episodes)
                 columns = {
                     COL_INITIAL_STATE: np.asarray(demo.initial_state, dtype=np.float64).tolist(),

@@ -8,7 +8,6 @@ choice once, without the noise, and pass it to every dataset we open or create.
 from __future__ import annotations
 
 import functools
-import os
 
 
 @functools.cache
@@ -18,9 +17,3 @@ def video_backend() -> str:
     except (ImportError, OSError, RuntimeError):
         return "pyav"
     return "torchcodec"
-
-
-def quiet_video_encoder() -> None:
-    """SVT-AV1 (LeRobot's default video codec) prints ~25 lines of settings per episode it encodes; keep its
-    errors only, unless the user chose a level."""
-    os.environ.setdefault("SVT_LOG", "1")

@@ -14,7 +14,6 @@ Left to itself, Ray's driver would wait a minute for the GCS and then end with i
 from __future__ import annotations
 
 import math
-import os
 import socket
 import threading
 import time
@@ -176,7 +175,6 @@ class RayExecutor:
     def __init__(
         self, args: RayArgs, suite: TaskSuite, collector_config: CollectorConfig, batch_size: int, device: str
     ):
-        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no network beyond the package registries
         import ray
 
         self.batch_size = batch_size

@@ -135,10 +135,19 @@ def frame_weights(
 
     `episodes` has `task`, `dataset_from_index`, `dataset_to_index`. The last `drop_n_last_frames` frames of
     each episode get weight 0 (Diffusion cannot train on them, as in LeRobot's EpisodeAwareSampler).
+
+    The rows may instead be parts of episodes (`dataset/interventions.py`: a person's and the policy's segments)
+    with `episode_to_index` (where their episode ends, for `drop_n_last_frames`) and `weight` (a row's
+    probability is multiplied by it); a part with no frame left to train on is then left out.
     """
     starts = episodes["dataset_from_index"].to_numpy(np.int64)
-    ends = episodes["dataset_to_index"].to_numpy(np.int64) - drop_n_last_frames
+    parts = "episode_to_index" in episodes.columns
+    episode_ends = episodes["episode_to_index" if parts else "dataset_to_index"].to_numpy(np.int64)
+    ends = np.minimum(episodes["dataset_to_index"].to_numpy(np.int64), episode_ends - drop_n_last_frames)
     usable = np.maximum(ends - starts, 0)
+    if parts and usable.any():
+        keep = usable > 0
+        episodes, starts, ends, usable = episodes[keep], starts[keep], ends[keep], usable[keep]
     if (usable == 0).any():
         short = list(episodes.index[usable == 0])
         raise AdaDemoError(
@@ -146,6 +155,8 @@ def frame_weights(
         )
     lengths = pd.Series(usable, index=episodes.index)
     probs = scheme.episode_probabilities(episodes["task"], lengths)
+    if "weight" in episodes.columns:
+        probs = probs * episodes["weight"].to_numpy(np.float64)
     weights = np.zeros(num_frames, dtype=np.float64)
     for start, end, p, n in zip(starts, ends, probs, usable, strict=True):
         weights[start:end] = p / n

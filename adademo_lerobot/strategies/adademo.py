@@ -11,13 +11,12 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from adademo_lerobot.algorithm import collect_on_failed_states
+from adademo_lerobot.algorithm import InnerLoop, collect_on_failed_states
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies.base import (
     DEFAULT_TARGET_SUCCESSES,
     PerRound,
-    RoundContext,
     StrategyConfig,
     check_per_round,
     default_eval_bound,
@@ -108,16 +107,14 @@ class AdaDemoStrategy:
     name = "adademo"
     commits_by_task = True
 
-    def start(self, ctx: RoundContext, resumed: dict | None) -> dict:
+    def start(self, ctx: InnerLoop, resumed: dict | None) -> dict:
         """E for the round: given, the default, or picked from the budget (a resumed round keeps its pick, since
         the estimate would now include its own evaluations)."""
         if self.target_successes is None and self.budget is not None:
             if resumed and resumed.get("target_successes") is not None:
                 self.target_successes = resumed["target_successes"]
             else:
-                rates = estimated_success_rates(
-                    ctx.dataset.root, ctx.round_index, ctx.suite.tasks, self.posterior_decay
-                )
+                rates = estimated_success_rates(ctx.root, ctx.round_index, ctx.tasks, self.posterior_decay)
                 self.target_successes, plan = pick_target_successes(self.budget, rates, self.cap)
                 log.info(
                     "budget %d: picked E=%d (predicted demos %s; total %d)",
@@ -135,7 +132,7 @@ class AdaDemoStrategy:
             "max_eval_episodes_per_task": self.max_eval_episodes_per_task,
         }
 
-    def expand(self, ctx: RoundContext) -> list[TaskRoundRecord]:
+    def expand(self, ctx: InnerLoop) -> list[TaskRoundRecord]:
         def one_task(task: str) -> TaskRoundRecord:
             record = ctx.new_record(task, self.name, self.target_successes, self.cap)
             return collect_on_failed_states(

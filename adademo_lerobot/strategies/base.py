@@ -21,18 +21,18 @@ import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
 import draccus
-import numpy as np
 
-from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.ledger import RoundJournal
 from adademo_lerobot.records import Demonstration, EpisodeRecord, TaskRoundRecord
 from adademo_lerobot.seeds import fresh_state_seed
+from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_demos, demo_entry
 from adademo_lerobot.suites.base import TaskSuite, full_state_step
 from adademo_lerobot.takeover import TakeoverArgs
 
@@ -102,7 +102,7 @@ class StrategyConfig(draccus.ChoiceRegistry, abc.ABC):
     """Which expansion strategy adds a round's demonstrations, with its own settings (`--strategy.type=NAME
     --strategy.FIELD=...`). Each registers itself and builds its rounds' strategies."""
 
-    description: ClassVar[str]  # one line, for --help, the report and the dataset card
+    description: ClassVar[str]  # one line, for the dataset card (`adademo-push`: `hub.source_description`)
     needs_policy: ClassVar[bool]  # it evaluates the policy
     collects_at_failed_states: ClassVar[bool]  # its demonstrations answer failed evaluations (principle B)
 
@@ -117,15 +117,26 @@ class StrategyConfig(draccus.ChoiceRegistry, abc.ABC):
     def validate(self) -> None:
         """Refuse bad settings in one line (before anything is written)."""
 
-    def check_one_round(self) -> None:
-        """adademo-expand runs one round: refuse a list of several per-round values."""
+    def check_one_round(self, command: str = "adademo-expand") -> None:
+        """`command` runs one round: refuse a list of several per-round values."""
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, PerRound) and len(value) > 1:
                 raise AdaDemoError(
-                    f"--strategy.{f.name}={list(value)}: adademo-expand runs one round, give one value "
+                    f"--strategy.{f.name}={list(value)}: {command} runs one round, give one value "
                     "(a list per round is for adademo-run)"
                 )
+
+    def answers_failures_only(self) -> bool:
+        """Every demonstration of its rounds answers a failed policy episode (`algorithm.InnerLoop` is all its
+        rounds ask for), so a person at a robot can run it (`adademo-record`). Strategies that also demonstrate
+        from fresh initial states need a simulated round (`RoundContext`)."""
+        return self.collects_at_failed_states
+
+    @classmethod
+    def answering_failures_only(cls) -> list[str]:
+        """The registered strategies whose default settings answer failures only."""
+        return [name for name, choice in cls.get_known_choices().items() if choice().answers_failures_only()]
 
     @abc.abstractmethod
     def build(self, round_in_run: int) -> ExpansionStrategy:
@@ -143,7 +154,9 @@ class StrategyConfig(draccus.ChoiceRegistry, abc.ABC):
 
 
 class ExpansionStrategy(Protocol):
-    """One round's strategy: `expand(ctx)` adds the round's demonstrations and accounts for them per task."""
+    """One round's strategy: `expand(ctx)` adds the round's demonstrations and accounts for them per task. A
+    strategy whose config `answers_failures_only()` uses only the `algorithm.InnerLoop` part of its context, so it
+    also runs with a person at a robot (`record.PersonRound`)."""
 
     name: str
     commits_by_task: bool  # demos are committed task by task in suite order (else in the order they arrive)
@@ -243,7 +256,10 @@ class OrderedAppender:
 
 
 @dataclass
-class RoundContext:
+class RoundContext(JournaledRound):
+    """A simulated round (`algorithm.InnerLoop`): the policy evaluated and the expert run by the executor on the
+    suite's initial states, demonstrations committed in order (`OrderedAppender`)."""
+
     suite: TaskSuite
     dataset: DemoDataset
     executor: Executor
@@ -281,34 +297,20 @@ class RoundContext:
             self.commit_every,
             self.suite.tasks if self.commit_by_task else None,
         )
-        if (self.dataset.root / "meta" / "info.json").exists():
-            eps = self.dataset.episodes()
-            this_round = eps[eps[COL_ROUND] == self.round_index]
-            for task, seeds in this_round.groupby("task")[COL_SEED]:
-                self._committed[task] = set(seeds.astype(np.int64).tolist())
+        self._committed = committed_demos(self.dataset.root, self.round_index)
 
     @property
     def batch_size(self) -> int:
         """Episodes evaluated side by side in one unit of work (`--eval.batch_size`)."""
         return self.executor.batch_size
 
-    def new_record(
-        self,
-        task: str,
-        strategy: str,
-        target_successes: int | None = None,
-        cap: int | None = None,
-        demos: int | None = None,
-    ) -> TaskRoundRecord:
-        """The ledger's record of `task` in this round, with the strategy's E, CAP and N (None where unused)."""
-        return TaskRoundRecord(
-            self.round_index, task, strategy, target_successes, cap, demos, self.policy_path
-        )
+    @property
+    def tasks(self) -> list[str]:
+        return self.suite.tasks
 
-    def _journal(self, *entries: dict) -> None:
-        if self.journal:
-            with self._lock:
-                self.journal.append(*entries)
+    @property
+    def root(self) -> Path:
+        return self.dataset.root
 
     # -- evaluation -------------------------------------------------------------------------------------
     def _check_not_aborted(self) -> None:
@@ -318,7 +320,7 @@ class RoundContext:
     def evaluate(self, task: str, seeds: list[int]) -> list[Outcome]:
         """Policy outcomes from these seeds' initial states; journaled outcomes are reused, not re-run."""
         self._check_not_aborted()
-        known = dict(self.journal.evaluations(task)) if self.journal else {}
+        known = self.known_evaluations(task)
         todo = [s for s in seeds if s not in known]
         if todo:
             fresh = {
@@ -334,18 +336,11 @@ class RoundContext:
                 self._takeover_states[(task, s)] = known[s]["takeover_state"]
         return [Outcome(s, bool(known[s]["success"])) for s in seeds]
 
-    def evaluation_cost(self, task: str, record: TaskRoundRecord) -> None:
-        evals = self.journal.evaluations(task) if self.journal else {}
-        record.eval_episodes_run = len(evals)
-        record.eval_env_steps = sum(e["steps"] for e in evals.values())
-
     # -- collection -------------------------------------------------------------------------------------
     def ask_expert(self, task: str, seeds: list[int]) -> None:
         """Start the expert on these states now (all at once with a Ray executor; the local executor still runs
         each when `collect_demo` needs it), skipping states this round already has an answer for."""
-        done = self._committed.get(task, set()) | set(
-            self.journal.expert_failures(task) if self.journal else ()
-        )
+        done = self.answered(task)
         for seed in seeds:
             if seed not in done and (task, seed) not in self._pending:
                 self._pending[(task, seed)] = self._collect(task, seed)
@@ -356,39 +351,17 @@ class RoundContext:
     def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
         """Ask the expert for a demonstration from exactly this seed's initial state (at most once a round)."""
         self._check_not_aborted()
-        if seed in self._committed.get(task, set()):
-            record.demos_added += 1  # committed before an interruption: its cost is in the journal
-            if self.journal and seed in self.journal.demos(task):
-                entry = self.journal.demos(task)[seed]
-                record.collection_env_steps += entry["steps"]
-                record.demo_frames += entry.get("frames", 0)
-                record.corrections += entry.get("start_step") is not None
-                record.takeover_failures += entry.get("takeover_failed", False)
-            return True
-        failures = self.journal.expert_failures(task) if self.journal else {}
-        if seed in failures:
-            record.takeover_failures += failures[seed].get("takeover_failed", False)
-            self._count_expert_failure(record, failures[seed])
-            return False
+        reused = self.reuse_answer(task, seed, record)
+        if reused is not None:
+            return reused
         pending = self._pending.pop((task, seed), None) or self._collect(task, seed)
         result = pending.result()
-        record.collection_env_steps += result.env_steps
-        record.takeover_failures += result.takeover_failed
         demo = result.demonstration
         if demo is not None:
-            entry = {"type": "demo", "task": task, "seed": int(seed), "steps": result.env_steps}
-            entry["frames"] = len(demo.frames)
-            if demo.is_correction:
-                entry["start_step"] = demo.start_step
+            entry = demo_entry(task, seed, demo, result.env_steps)
             if result.takeover_failed:
                 entry["takeover_failed"] = True  # then a demonstration from the initial state
-            self._journal(entry)
-            self._appender.add(task, demo)
-            self._committed.setdefault(task, set()).add(seed)
-            record.demos_added += 1
-            record.demo_frames += len(demo.frames)
-            record.corrections += demo.is_correction
-            return True
+            return self.store_answer(task, entry, record, lambda: self._appender.add(task, demo))
         entry = {
             "type": "expert_failure",
             "task": task,
@@ -400,23 +373,7 @@ class RoundContext:
         if result.takeover_failed:
             entry["takeover_failed"] = True
             entry["start_step"] = full_state_step(self._takeover_states[(task, seed)])  # where it failed from
-        self._journal(entry)
-        self._count_expert_failure(record, entry, count_steps=False)
-        return False
-
-    @staticmethod
-    def _count_expert_failure(record: TaskRoundRecord, entry: dict, count_steps: bool = True) -> None:
-        record.expert_failures += 1
-        if count_steps:
-            record.collection_env_steps += entry["steps"]
-        failed = {
-            "seed": entry["seed"],
-            "initial_state": entry["initial_state"],
-            "attempts": entry["attempts"],
-        }
-        if "start_step" in entry:
-            failed["start_step"] = entry["start_step"]
-        record.expert_failed_states.append(failed)
+        return self.store_answer(task, entry, record)
 
     def collect_from_fresh_states(self, task: str, n: int, record: TaskRoundRecord) -> None:
         """n demonstrations from fresh random initial states (no evaluation): Uniform and ablation A.

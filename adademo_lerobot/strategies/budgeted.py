@@ -28,14 +28,15 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
+from adademo_lerobot.algorithm import InnerLoop
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.seeds import expansion_state_seed
 from adademo_lerobot.strategies.adademo import check_decay, check_eval_bound
 from adademo_lerobot.strategies.base import (
     PerRound,
-    RoundContext,
     StrategyConfig,
     check_per_round,
     default_eval_bound,
@@ -87,6 +88,9 @@ class BudgetedConfig(StrategyConfig):
         check_decay(self.posterior_decay)
         check_rollout_cost(self.rollout_cost, self.failure_worth, self.rank_states)
 
+    def answers_failures_only(self) -> bool:
+        return self.rollout_cost is None  # paying for rollouts, it also buys demos from fresh states
+
     def build(self, round_in_run: int) -> BudgetedStrategy:
         cap = self.max_demos_per_task.at(round_in_run)
         bound = self.max_eval_episodes_per_task or default_eval_bound(None, cap)
@@ -135,7 +139,7 @@ class BudgetedStrategy:
     rank_states: str = "random"
     commits_by_task = False  # one loop over the whole round: demos are committed in the order they arrive
 
-    def start(self, ctx: RoundContext, resumed: dict | None) -> dict:
+    def start(self, ctx: InnerLoop, resumed: dict | None) -> dict:
         settings = {
             "budget": self.budget,
             "max_demos_per_task": self.cap,
@@ -150,18 +154,23 @@ class BudgetedStrategy:
             }
         return settings
 
-    def expand(self, ctx: RoundContext) -> list[TaskRoundRecord]:
+    def first_split(
+        self, root: Path, round_index: int, tasks: list[str]
+    ) -> tuple[dict[str, tuple[float, float]], dict[str, int]]:
+        """Each task's prior (the earlier rounds' evaluation outcomes) and the round's split of the budget under
+        it, before this round evaluates anything (adademo-record prints it as the round's plan)."""
+        prior = {t: prior_from_earlier_rounds(root, round_index, t, self.posterior_decay) for t in tasks}
+        split = allocate(
+            self.budget, {t: failure_mean(prior[t]) for t in tasks}, dict.fromkeys(tasks, self.cap)
+        )
+        return prior, split
+
+    def expand(self, ctx: InnerLoop) -> list[TaskRoundRecord]:
         if self.rollout_cost is not None:
             return expand_paying_for_rollouts(self, ctx)
-        tasks, budget, cap = ctx.suite.tasks, self.budget, self.cap
-        posterior = {
-            t: prior_from_earlier_rounds(ctx.dataset.root, ctx.round_index, t, self.posterior_decay)
-            for t in tasks
-        }
+        tasks, budget, cap = ctx.tasks, self.budget, self.cap
+        posterior, first_plan = self.first_split(ctx.root, ctx.round_index, tasks)
         records = {t: ctx.new_record(t, self.name, cap=cap) for t in tasks}
-        first_plan = allocate(
-            budget, {t: failure_mean(posterior[t]) for t in tasks}, dict.fromkeys(tasks, cap)
-        )
         for t in tasks:
             records[t].planned_demos = first_plan[t]
             records[t].extra = {"budget": budget, "prior": list(posterior[t])}
@@ -172,6 +181,7 @@ class BudgetedStrategy:
             if self.at_failed_states:  # principle B: only where the policy failed
                 ctx.collect_demo(task, seed, record)
             else:
+                # ablation A: a simulated round's (RoundContext) next fresh state
                 fresh_draws[task] = ctx.collect_from_next_fresh_state(task, fresh_draws[task], record)
 
         while sum(r.demos_added for r in records.values()) < budget:

@@ -61,8 +61,14 @@ import mujoco
 import numpy as np
 
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.suites.base import SuiteConfig, SuiteTaskEnv
-from adademo_lerobot.suites.gym_robotics import DEFAULT_CAMERA, RENDER_SIZE, GymRoboticsSuite, make_raw_env
+from adademo_lerobot.suites.base import SuiteConfig
+from adademo_lerobot.suites.gym_robotics import (
+    DEFAULT_CAMERA,
+    GymRoboticsSuite,
+    GymRoboticsTaskEnv,
+    checked_state,
+    make_raw_env,
+)
 
 # Canonical task names (stored in config.tasks, one-hot order follows the requested order) and short aliases.
 TASKS = ["AdroitHandDoor-v1", "AdroitHandHammer-v1", "AdroitHandPen-v1", "AdroitHandRelocate-v1"]
@@ -192,13 +198,7 @@ def state_dict_of(raw_env, state: np.ndarray) -> dict[str, np.ndarray]:
 
 def restore_state(raw_env, state: np.ndarray) -> np.ndarray:
     """Reset to exactly `state`; returns the env's raw observation."""
-    state = np.asarray(state, dtype=np.float64)
-    expected = state_dim_of(raw_env)
-    if state.shape != (expected,):
-        raise AdaDemoError(
-            f"initial state has {state.size} values but this Adroit task needs {expected}; "
-            f"was it recorded for another task?"
-        )
+    state = checked_state(state, state_dim_of(raw_env), "Adroit")
     # The env's own reset clears MjData (mj_resetData) and draws a random layout (from a fixed seed, so the
     # env's history does not matter), which set_env_state then overwrites with the recorded one.
     raw, _ = raw_env.reset(seed=RESTORE_SEED, options={"initial_state_dict": state_dict_of(raw_env, state)})
@@ -216,7 +216,7 @@ def restore_state(raw_env, state: np.ndarray) -> np.ndarray:
     return raw
 
 
-class AdroitTaskEnv(SuiteTaskEnv):
+class AdroitTaskEnv(GymRoboticsTaskEnv):
     """One Adroit task: `agent_pos` = 30 joint positions, `environment_state` = 92-D layout + task one-hot, 30-D
     unified actions (see the module docstring).
 
@@ -227,9 +227,6 @@ class AdroitTaskEnv(SuiteTaskEnv):
 
     def __init__(self, suite: AdroitSuite, task: str, terminate_on_success: bool = True):
         super().__init__(suite, task, terminate_on_success)
-        cfg = suite.config
-        # Always able to render: state-only envs render frames on demand for videos (e.g. `lerobot-eval`).
-        self._raw = make_raw_env(task, True, cfg.image_size if self._pixels else RENDER_SIZE, cfg.camera)
         self.native_index = native_from_unified(self._raw)
         self._joint_slots, self._joint_qpos = joint_qpos_addresses(self._raw)
         self._native_joints = NATIVE_JOINT_OBS[task]
@@ -264,16 +261,13 @@ class AdroitTaskEnv(SuiteTaskEnv):
         info["goal_achieved"] = self._goal_achieved
         return obs, reward, terminated, truncated, info
 
-    def _observation(self, raw: np.ndarray) -> dict:
+    def _layout(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         joints = np.zeros(JOINT_DIM, dtype=np.float64)
         joints[self._joint_slots] = self._raw.data.qpos[self._joint_qpos]
         layout = np.zeros(OBS_DIM, dtype=np.float64)
         layout[:JOINT_DIM] = joints
         layout[self._block] = np.asarray(raw, dtype=np.float64)[self._native_joints :]
-        obs = {"agent_pos": joints, "environment_state": np.concatenate([layout, self._onehot])}
-        if self._pixels:
-            obs["pixels"] = self._camera_image()
-        return obs
+        return joints, layout
 
 
 class AdroitSuite(GymRoboticsSuite):

@@ -27,9 +27,13 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.suites.base import SuiteConfig, SuiteTaskEnv
-from adademo_lerobot.suites.gym_robotics import DEFAULT_CAMERA, RENDER_SIZE, GymRoboticsSuite, make_raw_env
+from adademo_lerobot.suites.base import SuiteConfig
+from adademo_lerobot.suites.gym_robotics import (
+    DEFAULT_CAMERA,
+    GymRoboticsSuite,
+    GymRoboticsTaskEnv,
+    checked_state,
+)
 
 # Canonical task names (stored in config.tasks, one-hot order follows the requested order) and short aliases.
 TASKS = ["FetchReach-v4", "FetchPush-v4", "FetchPickAndPlace-v4", "FetchSlide-v4"]
@@ -85,13 +89,7 @@ def capture_state(raw_env) -> np.ndarray:
 
 def restore_state(raw_env, state: np.ndarray) -> dict:
     """Reset to exactly `state`; returns the env's raw dict observation."""
-    state = np.asarray(state, dtype=np.float64)
-    expected = state_dim_of(raw_env)
-    if state.shape != (expected,):
-        raise AdaDemoError(
-            f"initial state has {state.size} values but this Fetch task needs {expected}; "
-            f"was it recorded for another task?"
-        )
+    state = checked_state(state, state_dim_of(raw_env), "Fetch")
     # The env's own reset clears MjData (mj_resetData: warm start, mocap, ctrl) and restores the robot's
     # initial qpos/qvel; its random object pose and goal are then overwritten.
     raw_env.reset()
@@ -112,17 +110,11 @@ def full_observation(raw_obs: np.ndarray) -> np.ndarray:
     return out
 
 
-class FetchTaskEnv(SuiteTaskEnv):
+class FetchTaskEnv(GymRoboticsTaskEnv):
     """One Fetch task: `agent_pos` = 10-D proprioception, `environment_state` = 25-D observation + goal + one-hot.
 
     Success is the env's own (object, or gripper for Reach, within 5 cm of the goal).
     """
-
-    def __init__(self, suite: FetchSuite, task: str, terminate_on_success: bool = True):
-        super().__init__(suite, task, terminate_on_success)
-        cfg = suite.config
-        # Always able to render: state-only envs render frames on demand for videos (e.g. `lerobot-eval`).
-        self._raw = make_raw_env(task, True, cfg.image_size if self._pixels else RENDER_SIZE, cfg.camera)
 
     def _restore(self, state: np.ndarray) -> dict:
         return restore_state(self._raw, state)
@@ -142,17 +134,9 @@ class FetchTaskEnv(SuiteTaskEnv):
         raw, reward, _, _, info = self._raw.step(action)
         return raw, reward, bool(info.get("is_success", 0.0))
 
-    def _observation(self, raw: dict) -> dict:
+    def _layout(self, raw: dict) -> tuple[np.ndarray, np.ndarray]:
         full = full_observation(raw["observation"])
-        obs = {
-            "agent_pos": full[PROPRIO_INDICES],
-            "environment_state": np.concatenate(
-                [full, np.asarray(raw["desired_goal"], np.float64), self._onehot]
-            ),
-        }
-        if self._pixels:
-            obs["pixels"] = self._camera_image()
-        return obs
+        return full[PROPRIO_INDICES], np.concatenate([full, np.asarray(raw["desired_goal"], np.float64)])
 
 
 class FetchSuite(GymRoboticsSuite):

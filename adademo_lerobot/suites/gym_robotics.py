@@ -1,6 +1,7 @@
 """What the two gymnasium-robotics families (Fetch, Adroit) share: making the stock env (optionally rendering
-from a named camera), short task names, drawing an initial state with the env's own seeded reset, and the
-suite class around them. Each family adds its state capture/restore and observation layout."""
+from a named camera), short task names, drawing an initial state with the env's own seeded reset, checking a
+recorded state's size, and the task env and suite classes around them. Each family adds its state
+capture/restore and observation layout."""
 
 from __future__ import annotations
 
@@ -13,7 +14,13 @@ import mujoco
 import numpy as np
 
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.suites.base import SuiteBase, SuiteConfig, check_task_names, split_task_list
+from adademo_lerobot.suites.base import (
+    SuiteBase,
+    SuiteConfig,
+    SuiteTaskEnv,
+    check_task_names,
+    split_task_list,
+)
 
 DEFAULT_CAMERA = "default"  # the env's own free camera (what `env.render()` shows)
 RENDER_SIZE = 256  # frames for videos of state-only envs
@@ -60,6 +67,39 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
                 raw.model, raw.data, None, image_size, image_size, camera_name=camera
             )
     return raw
+
+
+def checked_state(state: np.ndarray, expected: int, family: str) -> np.ndarray:
+    """A recorded initial state as float64, refused unless it has this task's `expected` number of values."""
+    state = np.asarray(state, dtype=np.float64)
+    if state.shape != (expected,):
+        raise AdaDemoError(
+            f"initial state has {state.size} values but this {family} task needs {expected}; "
+            f"was it recorded for another task?"
+        )
+    return state
+
+
+class GymRoboticsTaskEnv(SuiteTaskEnv):
+    """One task of a gymnasium-robotics family: the stock env, and LeRobot's observation dict from the family's
+    layout (`_layout`: agent_pos and environment_state without the task one-hot) of each raw observation."""
+
+    def __init__(self, suite: GymRoboticsSuite, task: str, terminate_on_success: bool = True):
+        super().__init__(suite, task, terminate_on_success)
+        cfg = suite.config
+        # Always able to render: state-only envs render frames on demand for videos (e.g. `lerobot-eval`).
+        self._raw = make_raw_env(task, True, cfg.image_size if self._pixels else RENDER_SIZE, cfg.camera)
+
+    def _layout(self, raw) -> tuple[np.ndarray, np.ndarray]:
+        """(agent_pos, environment_state without the task one-hot) of a raw observation."""
+        raise NotImplementedError
+
+    def _observation(self, raw) -> dict:
+        agent_pos, layout = self._layout(raw)
+        obs = {"agent_pos": agent_pos, "environment_state": np.concatenate([layout, self._onehot])}
+        if self._pixels:
+            obs["pixels"] = self._camera_image()
+        return obs
 
 
 class GymRoboticsSuite(SuiteBase):
