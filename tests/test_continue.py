@@ -106,6 +106,7 @@ def test_continue_from_a_local_dataset_and_checkpoint_then_resume(reach_push_dat
     assert "Started from dataset me/reach-push" in report and "round 0: SR % (demos)" in report
 
 
+@pytest.mark.slow
 def test_continue_in_scratch_mode_trains_every_round_from_scratch(reach_push_dataset, checkpoint, tmp_path):
     """--train.mode=scratch: the user's checkpoint is round 0's policy and the architecture of later rounds, never
     their starting weights."""

@@ -267,7 +267,9 @@ def record_args(root: Path, checkpoint: Path, *extra: str) -> list[str]:
 
 @requires_rendering
 @pytest.mark.parametrize(
-    "kind,demo_start", [("corrections", "takeover"), ("all", "initial")], ids=["corrections", "all"]
+    "kind,demo_start",
+    [("corrections", "takeover"), pytest.param("all", "initial", marks=pytest.mark.slow)],
+    ids=["corrections", "all"],
 )
 def test_adademo_record_continues_a_dagger_dataset(dagger, kind, demo_start, tmp_path):
     """The issue's crash: adademo-record on LeRobot's DAgger data now adds the person's episodes, each frame

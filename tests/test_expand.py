@@ -190,7 +190,10 @@ def test_second_round_follows_the_first(dataset, ckpt):
     check_ledger_agrees(dataset, 2)
 
 
-@pytest.mark.parametrize("demo_start", ["initial", "takeover"])
+@pytest.mark.parametrize(
+    "demo_start",
+    ["initial", pytest.param("takeover", marks=pytest.mark.slow)],
+)
 def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, ckpt, demo_start):
     args = [
         "--dataset.repo_id=local/demo",

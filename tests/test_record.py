@@ -207,6 +207,7 @@ def test_old_strategy_flags_say_their_new_spelling_and_change_nothing(recorded):
 
 
 @requires_rendering
+@pytest.mark.slow
 def test_the_person_takes_over_where_the_policy_goes_wrong(recorded, tmp_path):
     """--demo_start=takeover: the scripted person watches the policy, takes over once it goes where the expert would
     not, and the correction is recorded from that moment: two rounds, each starting from the last."""
