@@ -29,6 +29,9 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from adademo_lerobot.dataset.layout import (
+    COL_COLLECTOR,
+    COL_SOURCE,
+    COL_START_STEP,
     CORRECTION_SOURCE,
     INTERVENTION_FEATURE,
     PERSON_COLLECTOR,
@@ -85,9 +88,9 @@ def apply_provenance(df: pd.DataFrame, flags: np.ndarray, rows: np.ndarray) -> N
         return
     sub = df.loc[rows]
     sources, steps = episode_provenance(flags, sub["dataset_from_index"], sub["dataset_to_index"])
-    df.loc[rows, "adademo/source"] = sources
-    df.loc[rows, "adademo/start_step"] = steps
-    df.loc[rows, "adademo/collector"] = [PERSON_COLLECTOR if s == CORRECTION_SOURCE else "" for s in sources]
+    df.loc[rows, COL_SOURCE] = sources
+    df.loc[rows, COL_START_STEP] = steps
+    df.loc[rows, COL_COLLECTOR] = [PERSON_COLLECTOR if s == CORRECTION_SOURCE else "" for s in sources]
 
 
 def segments(flags: np.ndarray, episodes: pd.DataFrame) -> pd.DataFrame:

@@ -167,8 +167,10 @@ def read_episode_metadata(root: str | Path) -> pd.DataFrame:
             df[COL_START_STEP] = 0
         tables.append(df)
     df = pd.concat(tables, ignore_index=True)
-    flags = intervention_flags(root)
-    if flags is not None:  # LeRobot's DAgger data: corrections and the policy's own episodes
+    # LeRobot's DAgger data: corrections and the policy's own episodes (its frames are read only when some
+    # episodes still lack our columns: after our first append they carry the reading)
+    flags = intervention_flags(root) if any(imported) else None
+    if flags is not None:
         apply_provenance(df, flags, np.asarray(imported, dtype=bool))
     df["task"] = [t[0] if len(t) else "" for t in df.pop("tasks")]
     for col in (COL_INITIAL_STATE, COL_START_STATE):
