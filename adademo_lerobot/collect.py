@@ -12,7 +12,7 @@ from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.metadata import check_same_suite, has_dataset, load_suite_config
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.executors import ExecutionArgs, Executor, LocalExecutor, make_executor
+from adademo_lerobot.executors import ExecutionArgs, Executor, make_executor
 from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies.base import RoundContext
@@ -41,7 +41,7 @@ def collect_fresh(
     collector_config = collector_config or ScriptedCollectorConfig()
     own_executor = executor is None
     if own_executor:
-        executor = LocalExecutor(suite, collector_config, batch_size=1, device="cpu", torch_threads=1)
+        executor = make_executor(ExecutionArgs(torch_threads=1), suite, collector_config, batch_size=1)
     done: dict[str, int] = {}
     try:
         with tqdm(total=sum(demos_per_task.values()), desc=desc, unit="demo", dynamic_ncols=True) as bar:
@@ -129,10 +129,7 @@ def run_collect(cfg) -> dict[str, TaskRoundRecord]:
         raise AdaDemoError("--dataset.root is required (the folder of the LeRobot dataset to create)")
     if cfg.episodes_per_task < 1:
         raise AdaDemoError(f"--episodes_per_task must be >= 1, got {cfg.episodes_per_task}")
-    execution = ExecutionArgs(
-        torch_threads=1, executor=cfg.executor, ray=cfg.ray
-    )  # the expert acts in 1 thread
-    execution.validate_execution()
+    cfg.validate_execution()
     suite = make_suite(cfg.suite)
     cfg.collector.validate(suite)
     root = Path(cfg.dataset.root)
@@ -145,7 +142,7 @@ def run_collect(cfg) -> dict[str, TaskRoundRecord]:
             DemoDataset.check_new_root(root)
             dataset = DemoDataset(cfg.dataset.repo_id, root, suite.config)
         start = time.perf_counter()
-        executor = make_executor(execution, suite, cfg.collector, batch_size=1)
+        executor = make_executor(cfg, suite, cfg.collector, batch_size=1)
         try:
             summaries = collect_initial_demos(
                 suite, dataset, cfg.episodes_per_task, cfg.seed, cfg.collector, executor, cfg.commit_every

@@ -7,7 +7,7 @@ from typing import Any
 
 from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
 from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.executors import ExecutionArgs, RayArgs
+from adademo_lerobot.executors import ExecutionArgs, ThreadArgs
 from adademo_lerobot.samplers import check_sampler_flags
 from adademo_lerobot.strategies import StrategyConfig, default_strategy
 from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
@@ -42,7 +42,7 @@ def default_collector() -> CollectorConfig:
 
 
 @dataclass
-class CollectConfig:
+class CollectConfig(ExecutionArgs):
     suite: SuiteConfig = field(default_factory=default_suite)
     collector: CollectorConfig = field(default_factory=default_collector)
     dataset: DatasetArgs = field(default_factory=DatasetArgs)
@@ -52,9 +52,6 @@ class CollectConfig:
     resume: bool = False
     # Episodes buffered in memory between dataset commits (a kill loses at most these).
     commit_every: int = 10
-    # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
-    executor: str = "local"
-    ray: RayArgs = field(default_factory=RayArgs)
 
 
 @dataclass
@@ -88,14 +85,11 @@ class TrainSamplingArgs:
 
 
 @dataclass
-class TrainCommandFlags(TrainSamplingArgs):
-    """adademo-train's own flags. Every flag of `lerobot-train` is accepted too: --dataset.repo_id/root,
-    --policy.type or --policy.path, --output_dir, --steps, --batch_size, --resume, optimizer, scheduler, wandb, ...
-    (`lerobot-train --help` lists them). Defaults that differ from lerobot-train: --steps=3000 --batch_size=64
-    --num_workers=0 --save_freq=1000 --env_eval_freq=0."""
-
-    # torch intra-op threads (2-core default; lower it when env worker processes run beside training).
-    torch_threads: int = 2
+class TrainCommandFlags(TrainSamplingArgs, ThreadArgs):
+    """adademo-train's own flags (and --torch_threads). Every flag of `lerobot-train` is accepted too:
+    --dataset.repo_id/root, --policy.type or --policy.path, --output_dir, --steps, --batch_size, --resume,
+    optimizer, scheduler, wandb, ... (`lerobot-train --help` lists them). Defaults that differ from lerobot-train:
+    --steps=3000 --batch_size=64 --num_workers=0 --save_freq=1000 --env_eval_freq=0."""
 
 
 @dataclass
@@ -123,34 +117,31 @@ class EvalCommandConfig(ExecutionArgs):
     eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
 
 
+# --plan_only's evaluation episodes per task, unless --plan_episodes_per_task says otherwise.
+PLAN_EPISODES_PER_TASK = 20
+
+
 @dataclass
-class ExpandConfig(ExecutionArgs):
-    dataset: DatasetArgs = field(default_factory=DatasetArgs)
-    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+class RoundArgs(ExecutionArgs):
+    """How an expansion round runs: adademo-expand's flags for its round and adademo-run's for each of its rounds
+    (declared once: `RunConfig` hands them on as they are)."""
+
     # The expansion strategy and its settings: --strategy.type=adademo|budgeted|uniform|task_only, then its fields
-    # (--strategy.target_successes=5, --strategy.budget=20, ...; `docs/commands/expand.md` lists them).
+    # (--strategy.target_successes=5, --strategy.budget=20, ...; `docs/commands/expand.md` lists them). A list
+    # gives adademo-run one value per round (--strategy.budget=[32,48,64]; a single value serves every round).
     strategy: StrategyConfig = field(default_factory=default_strategy)
-    # Evaluate and print the predicted demos per task (N_k = E/SR_k - E, capped, with the strategy's E and CAP)
-    # without collecting (adademo and task_only).
-    plan_only: bool = False
-    # --plan_only: evaluation episodes per task that estimate SR_k.
-    plan_episodes_per_task: int = 20
     seed: int = 0
     collector: CollectorConfig = field(default_factory=default_collector)
     # Where a demonstration starts: `initial` (the failed episode's initial state: the paper) or `takeover` (a
     # correction: the expert takes over the failed rollout at the step `--takeover.*` picks).
     demo_start: str = "initial"
     takeover: TakeoverArgs = field(default_factory=TakeoverArgs)
-    eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
     # Demonstrations buffered in memory between dataset commits (a kill loses at most these).
     commit_every: int = 10
 
-    def validate(self, one_round: bool = True) -> None:
-        """The flags alone (answered before LeRobot is imported); `one_round`: adademo-expand's own flags, one
-        value per setting (adademo-run hands over its per-round lists)."""
+    def validate_round(self) -> None:
+        """The flags alone (answered before LeRobot is imported), whatever the number of rounds."""
         self.strategy.validate()
-        if one_round:
-            self.strategy.check_one_round()
         check_demo_start(self.demo_start, self.takeover)
         if self.demo_start == "takeover" and not self.strategy.collects_at_failed_states:
             raise AdaDemoError(
@@ -158,23 +149,39 @@ class ExpandConfig(ExecutionArgs):
                 "collects from fresh initial states without evaluating: use --strategy.type=adademo or budgeted, "
                 "or --demo_start=initial"
             )
-        budgeted_task_only = self.strategy.type == "task_only" and bool(self.strategy.budget)
-        if self.plan_only and (self.strategy.type not in ("adademo", "task_only") or budgeted_task_only):
+        if self.commit_every < 1:
+            raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
+        self.validate_execution()
+
+
+@dataclass
+class ExpandConfig(RoundArgs):
+    dataset: DatasetArgs = field(default_factory=DatasetArgs)
+    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+    # Evaluate and print the predicted demos per task (N_k = E/SR_k - E, capped, with the strategy's E and CAP)
+    # without collecting (the strategies that predict so: adademo, and task_only without a budget).
+    plan_only: bool = False
+    # --plan_only: evaluation episodes per task that estimate SR_k.
+    plan_episodes_per_task: int = PLAN_EPISODES_PER_TASK
+    eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
+
+    def validate(self) -> None:
+        """adademo-expand's flags (answered before LeRobot is imported): one round, one value per setting."""
+        self.validate_round()
+        self.strategy.check_one_round()
+        if self.plan_only and not self.strategy.can_plan():
             raise AdaDemoError(
-                f"--plan_only predicts N_k = E/SR_k - E: it needs --strategy.type=adademo or task_only (without "
-                f"--strategy.budget), not {self.strategy.type}"
-                + (" with a budget" if budgeted_task_only else "")
+                f"--plan_only predicts N_k = E/SR_k - E: it needs --strategy.type="
+                f"{' or '.join(StrategyConfig.planning())} (task_only without --strategy.budget), not "
+                f"{self.strategy.type}" + (" with a budget" if self.strategy.type == "task_only" else "")
             )
         if self.plan_episodes_per_task < 1:
             raise AdaDemoError(f"--plan_episodes_per_task must be >= 1, got {self.plan_episodes_per_task}")
-        if not self.plan_only and self.plan_episodes_per_task != 20:
+        if not self.plan_only and self.plan_episodes_per_task != PLAN_EPISODES_PER_TASK:
             raise AdaDemoError(
                 "--plan_episodes_per_task is used with --plan_only (task_only's own is "
                 "--strategy.plan_episodes_per_task): add --plan_only, or drop it"
             )
-        if self.commit_every < 1:
-            raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
-        self.validate_execution()
 
 
 @dataclass

@@ -28,7 +28,7 @@ from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import RoundJournal, append_ledger, ledger_rounds
 from adademo_lerobot.records import TaskRoundRecord
 from adademo_lerobot.strategies import planned_demos
-from adademo_lerobot.strategies.base import RoundContext
+from adademo_lerobot.strategies.base import PlanningStrategy, RoundContext
 from adademo_lerobot.strategies.task_only import estimate_success
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.tables import table
@@ -92,7 +92,7 @@ def format_round_table(records: list[TaskRoundRecord]) -> str:
     return table(["task", "eval", "SR", "demos", "expert fail", "cap", "eval steps", "collect steps"], rows)
 
 
-def plan(cfg, suite, ctx: RoundContext, strategy) -> list[dict]:
+def plan(cfg, suite, ctx: RoundContext, strategy: PlanningStrategy) -> list[dict]:
     """Evaluate and predict each task's demos with the strategy's E and CAP, without collecting (price a round
     before paying for it)."""
     strategy.start(ctx, None)
@@ -138,7 +138,10 @@ def run_expand(
     `round_index` (the run's one truth), on the run's `executor` (kept across rounds). `on_ledger_written(round)`
     is called between the ledger write and the journal's end (a kill there must not lose the next round: the
     tests kill the process from it)."""
-    cfg.validate(one_round=round_in_run is None)
+    if round_in_run is None:
+        cfg.validate()  # adademo-expand's own round
+    else:
+        cfg.validate_round()  # adademo-run's round i (its per-round values were checked by the run)
     if cfg.dataset.root is None:
         raise AdaDemoError("--dataset.root is required (an adademo dataset made by adademo-collect)")
     if not has_dataset(cfg.dataset.root):

@@ -54,6 +54,7 @@ from adademo_lerobot.dataset.layout import ADADEMO_DIR
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata, read_info
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.executors import ComputeArgs
 from adademo_lerobot.expand import check_ledger_matches_dataset, next_round
 from adademo_lerobot.files import exclusive_use
 from adademo_lerobot.ledger import RoundJournal, append_ledger
@@ -81,7 +82,7 @@ class RecordDatasetArgs:
 
 
 @dataclass
-class RecordConfig:
+class RecordConfig(ComputeArgs):
     # The robot: --robot.type=NAME and its fields, any robot lerobot-record knows or an installed plugin
     # (e.g. --robot.type=so101_follower --robot.port=/dev/ttyACM0; `lerobot-record --help` lists them).
     robot: dict | None = lerobot_choice("robot")
@@ -106,7 +107,6 @@ class RecordConfig:
     # over (the follower moves to the leader's pose at once).
     demo_start: str = "initial"
     seed: int = 0
-    device: str = "cpu"
 
     # Flags of earlier releases and where they went (`adademo_lerobot.cli` answers them in one line).
     MOVED_FLAGS: ClassVar[dict[str, str]] = {
@@ -123,6 +123,7 @@ class RecordConfig:
             raise AdaDemoError("--teleop.type is required (the person's teleoperator, e.g. so101_leader)")
         if self.policy.path is None:
             raise AdaDemoError("--policy.path is required (the policy whose failures the round answers)")
+        self.validate_threads()
         self.strategy.validate()
         self.strategy.check_one_round("adademo-record")
         if not self.strategy.answers_failures_only():
@@ -341,6 +342,7 @@ class Session:
     """The connected robot, teleoperator, policy and person of one round, and its journal."""
 
     def __init__(self, cfg: RecordConfig, robot, teleop, person, features: dict, round_index: int):
+        import torch
         from lerobot.common.control_utils import predict_action
         from lerobot.policies.utils import make_robot_action
         from lerobot.utils.constants import ACTION, OBS_STR
@@ -353,6 +355,7 @@ class Session:
         self.root = Path(cfg.dataset.root)
         self.dataset = DemoDataset.open_recorded(cfg.dataset.repo_id, self.root)
         self.journal = RoundJournal(self.root, round_index)
+        torch.set_num_threads(cfg.torch_threads)
         self.loaded = load_policy(cfg.policy.path, cfg.device)
         self.fps = read_info(self.root)["fps"]
         self.max_steps = max(1, round(cfg.dataset.episode_time_s * self.fps))

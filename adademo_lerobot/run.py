@@ -27,14 +27,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from adademo_lerobot.collect import collect_initial_demos, format_collection_table
-from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.configs import (
     DatasetArgs,
     EvalBatchArgs,
     ExpandConfig,
     PolicyPathArgs,
+    RoundArgs,
     TrainSamplingArgs,
-    default_collector,
     default_suite,
     lerobot_choice,
 )
@@ -43,7 +42,7 @@ from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.evaluation import format_success_table, success_table, write_eval_outputs
-from adademo_lerobot.executors import ExecutionArgs, make_executor
+from adademo_lerobot.executors import make_executor
 from adademo_lerobot.expand import next_round, run_expand
 from adademo_lerobot.files import atomic_write_text, exclusive_use
 from adademo_lerobot.fixed_set import evaluate_fixed_set
@@ -58,9 +57,8 @@ from adademo_lerobot.start import (
     combined_digest,
     prepare_dataset,
 )
-from adademo_lerobot.strategies import StrategyConfig, default_strategy
 from adademo_lerobot.suites import SuiteConfig, TaskSuite, make_suite, suite_config_from_dict
-from adademo_lerobot.takeover import TakeoverArgs, check_can_take_over
+from adademo_lerobot.takeover import check_can_take_over
 
 STEPS_SCHEDULES = ("constant", "proportional")
 
@@ -100,27 +98,20 @@ class RunEvalArgs:
 
 
 @dataclass
-class RunConfig(ExecutionArgs):
+class RunConfig(RoundArgs):
+    """The run's own flags; those of its expansion rounds (strategy, collector, demo start, execution, ...) are
+    `RoundArgs`, adademo-expand's, handed on as they are."""
+
     run_dir: str | None = None
     # Start from an existing dataset (no round-0 collection) and, optionally, checkpoint (no round-0 training).
     dataset: StartDatasetArgs = field(default_factory=StartDatasetArgs)
     policy: StartPolicyArgs = field(default_factory=StartPolicyArgs)
     suite: SuiteConfig = field(default_factory=default_suite)
-    collector: CollectorConfig = field(default_factory=default_collector)
     # E0: demos per task in the initial dataset.
     initial_demos_per_task: int = 10
-    # The expansion strategy and its per-round settings (--strategy.type=adademo|budgeted|uniform|task_only, then
-    # e.g. --strategy.target_successes=[5,10] or --strategy.budget=[32,48,64]; a single value serves every round).
-    strategy: StrategyConfig = field(default_factory=default_strategy)
     rounds: int = 2
-    # Where a demonstration starts: `initial` (the failed episode's initial state: the paper) or `takeover` (a
-    # correction: the expert takes over the failed rollout at the step `--takeover.*` picks).
-    demo_start: str = "initial"
-    takeover: TakeoverArgs = field(default_factory=TakeoverArgs)
-    seed: int = 0
     train: RunTrainArgs = field(default_factory=RunTrainArgs)
     eval: RunEvalArgs = field(default_factory=RunEvalArgs)
-    commit_every: int = 10
     # Push the final dataset to the hub as hub_repo_id (token from HF_TOKEN or your login).
     push_to_hub: bool = False
     hub_repo_id: str | None = None
@@ -132,7 +123,7 @@ class RunConfig(ExecutionArgs):
             raise AdaDemoError("--run_dir is required (everything of the run goes there)")
         if self.rounds < 0 or self.initial_demos_per_task < 1:
             raise AdaDemoError("--rounds must be >= 0 and --initial_demos_per_task >= 1")
-        self.expand_config(1).validate(one_round=False)  # the strategy, demo start and execution flags
+        self.validate_round()  # the strategy, demo start and execution flags
         if self.dataset.root is not None and self.dataset.repo_id is None:
             self.dataset.repo_id = f"local/{Path(self.dataset.root).name}"
         if self.policy.path is not None and self.dataset.repo_id is None:
@@ -153,23 +144,14 @@ class RunConfig(ExecutionArgs):
             raise AdaDemoError("--push_to_hub=true needs --hub_repo_id=USER/NAME")
         self.train.validate()
 
-    def expand_config(self, i: int, dataset_root: Path | None = None, repo_id: str = "", checkpoint=None):
-        """Round i's expansion, as adademo-expand would run it (the strategy's round-i values are picked by
-        `run_expand`)."""
+    def expand_config(self, dataset_root: Path, repo_id: str, checkpoint: Path) -> ExpandConfig:
+        """An expansion round of the run, as adademo-expand would run it (`run_expand` picks the strategy's
+        round-i values)."""
         return ExpandConfig(
-            device=self.device,
-            torch_threads=self.torch_threads,
-            executor=self.executor,
-            ray=self.ray,
-            dataset=DatasetArgs(repo_id=repo_id, root=None if dataset_root is None else str(dataset_root)),
-            policy=PolicyPathArgs(path=None if checkpoint is None else str(checkpoint)),
-            strategy=self.strategy,
-            seed=self.seed,
-            collector=self.collector,
-            demo_start=self.demo_start,
-            takeover=self.takeover,
+            **{f.name: getattr(self, f.name) for f in dataclasses.fields(RoundArgs)},
+            dataset=DatasetArgs(repo_id=repo_id, root=str(dataset_root)),
+            policy=PolicyPathArgs(path=str(checkpoint)),
             eval=EvalBatchArgs(batch_size=self.eval.batch_size),
-            commit_every=self.commit_every,
         )
 
 
@@ -522,7 +504,7 @@ def expand_round(
     if r in ledger_rounds(data.root):  # killed after the round finished, before the run marked it done
         eps = read_episode_metadata(data.root)
         return {"demos_added": eps[eps["adademo/round"] == r].groupby("task").size().astype(int).to_dict()}
-    expand_cfg = cfg.expand_config(i, data.root, data.repo_id, checkpoint)
+    expand_cfg = cfg.expand_config(data.root, data.repo_id, checkpoint)
     records = run_expand(
         expand_cfg,
         round_in_run=i,

@@ -7,7 +7,7 @@ import pytest
 from lerobot.configs.policies import PreTrainedConfig
 
 from adademo_lerobot.cli import parse_config, parse_light
-from adademo_lerobot.configs import TrainCommandFlags
+from adademo_lerobot.configs import ExpandConfig, TrainCommandFlags
 from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.record import RecordConfig
 from adademo_lerobot.run import RunConfig
@@ -97,3 +97,51 @@ def test_the_continue_recipe_asks_for_the_users_checkpoint():
     argv = [f"--config_path={RECIPE.parent / 'continue_from_checkpoint.yaml'}", "--run_dir=/tmp/r"]
     with pytest.raises(AdaDemoError, match="--policy.path"):
         parse_light(RunConfig, argv).validate()
+
+
+def test_run_hands_its_round_flags_to_each_expansion_as_adademo_expand_reads_them(tmp_path):
+    argv = [
+        "--strategy.type=budgeted",
+        "--strategy.budget=[7,9]",
+        "--demo_start=takeover",
+        "--commit_every=3",
+        "--torch_threads=1",
+        "--executor=ray",
+        "--ray.num_workers=3",
+        "--seed=5",
+        "--eval.batch_size=4",
+    ]
+    run_cfg = parse_light(RunConfig, ["--run_dir=/tmp/r", *argv])
+    expand_cfg = run_cfg.expand_config(tmp_path / "ds", "local/ds", tmp_path / "ckpt")
+    expected = parse_light(
+        ExpandConfig,
+        [
+            *argv,
+            f"--dataset.root={tmp_path / 'ds'}",
+            "--dataset.repo_id=local/ds",
+            f"--policy.path={tmp_path / 'ckpt'}",
+        ],
+    )
+    assert expand_cfg == expected
+    assert expand_cfg.strategy.budget.at(2) == 9 and expand_cfg.ray.num_workers == 3
+
+
+@pytest.mark.parametrize(
+    ("strategy", "plans"),
+    [
+        (["--strategy.type=adademo"], True),
+        (["--strategy.type=adademo", "--strategy.budget=20"], True),  # E is picked from the budget first
+        (["--strategy.type=task_only"], True),
+        (["--strategy.type=task_only", "--strategy.budget=20"], False),  # the budgeted loop: no N_k rule
+        (["--strategy.type=budgeted", "--strategy.budget=20"], False),
+        (["--strategy.type=uniform", "--strategy.demos_per_task=2"], False),
+    ],
+)
+def test_plan_only_is_refused_for_a_strategy_that_cannot_plan(strategy, plans):
+    cfg = parse_light(ExpandConfig, ["--dataset.root=/d", "--policy.path=/p", "--plan_only=true", *strategy])
+    assert cfg.strategy.can_plan() is plans
+    if plans:
+        cfg.validate()
+    else:
+        with pytest.raises(AdaDemoError, match="--plan_only predicts N_k = E/SR_k - E: it needs"):
+            cfg.validate()

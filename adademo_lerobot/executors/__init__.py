@@ -36,20 +36,36 @@ class RayArgs:
 
 
 @dataclass
-class ExecutionArgs:
-    """Where a command's episodes run and with what: the flags every command that runs a policy shares."""
+class ThreadArgs:
+    """The flag of every command that computes with torch (training among them)."""
+
+    # torch intra-op threads of this process (2-core default; lower it when env worker processes run beside it).
+    torch_threads: int = 2
+
+    def validate_threads(self) -> None:
+        if self.torch_threads < 1:
+            raise AdaDemoError(f"--torch_threads must be >= 1, got {self.torch_threads}")
+
+
+@dataclass
+class ComputeArgs(ThreadArgs):
+    """The flags of every command that runs a policy in this process (a robot's round among them)."""
 
     # Device of the policy (cpu, cuda, mps).
     device: str = "cpu"
-    # torch intra-op threads of this process (2-core default; lower it when env worker processes run beside it).
-    torch_threads: int = 2
+
+
+@dataclass
+class ExecutionArgs(ComputeArgs):
+    """Where a command's episodes run and with what: the flags every command that runs simulated episodes
+    shares."""
+
     # Where episodes run: `local` (this process) or `ray` (Ray actors; see --ray.*).
     executor: str = "local"
     ray: RayArgs = field(default_factory=RayArgs)
 
     def validate_execution(self) -> None:
-        if self.torch_threads < 1:
-            raise AdaDemoError(f"--torch_threads must be >= 1, got {self.torch_threads}")
+        self.validate_threads()
         check_executor_args(self.executor, self.ray)
 
 
@@ -158,6 +174,7 @@ def make_executor(
 __all__ = [
     "EXECUTORS",
     "CollectionResult",
+    "ComputeArgs",
     "ExecutionArgs",
     "EpisodeRecord",
     "Executor",
@@ -165,6 +182,7 @@ __all__ = [
     "LocalExecutor",
     "Pending",
     "RayArgs",
+    "ThreadArgs",
     "check_executor_args",
     "make_executor",
 ]

@@ -77,6 +77,9 @@ class AdaDemoConfig(StrategyConfig):
         check_eval_bound(self.max_eval_episodes_per_task)
         check_decay(self.posterior_decay)
 
+    def can_plan(self) -> bool:
+        return True
+
     def build(self, round_in_run: int) -> AdaDemoStrategy:
         return AdaDemoStrategy(
             self.target_successes.at(round_in_run),

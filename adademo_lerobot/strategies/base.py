@@ -138,6 +138,16 @@ class StrategyConfig(draccus.ChoiceRegistry, abc.ABC):
         """The registered strategies whose default settings answer failures only."""
         return [name for name, choice in cls.get_known_choices().items() if choice().answers_failures_only()]
 
+    def can_plan(self) -> bool:
+        """Its rounds predict each task's demonstrations from the success rate alone (N_k = E/SR_k - E, capped):
+        it builds `PlanningStrategy` rounds, which `adademo-expand --plan_only` prices without collecting."""
+        return False
+
+    @classmethod
+    def planning(cls) -> list[str]:
+        """The registered strategies whose default settings can plan."""
+        return [name for name, choice in cls.get_known_choices().items() if choice().can_plan()]
+
     @abc.abstractmethod
     def build(self, round_in_run: int) -> ExpansionStrategy:
         """The strategy of the run's round `round_in_run` (from 1), with that round's values."""
@@ -167,6 +177,14 @@ class ExpansionStrategy(Protocol):
 
     def expand(self, ctx: RoundContext) -> list[TaskRoundRecord]:
         """The round: one record per task of the suite, in suite order."""
+
+
+class PlanningStrategy(ExpansionStrategy, Protocol):
+    """A round that predicts each task's demonstrations from its success rate: N_k = E/SR_k - E, capped at CAP
+    (built by a config whose `can_plan()` is true)."""
+
+    target_successes: int  # E, once `start` has picked it
+    cap: int
 
 
 def eval_entry(task: str, record: EpisodeRecord) -> dict:

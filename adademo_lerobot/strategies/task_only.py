@@ -77,6 +77,9 @@ class TaskOnlyConfig(StrategyConfig):
                 "(without a budget, --strategy.plan_episodes_per_task sets the evaluations)"
             )
 
+    def can_plan(self) -> bool:
+        return not self.budget  # with a budget its round is the budgeted strategy's loop
+
     def build(self, round_in_run: int) -> TaskOnlyStrategy | BudgetedStrategy:
         cap = self.max_demos_per_task.at(round_in_run)
         if self.budget:  # the budgeted strategy's round, each failure answered from a fresh state
