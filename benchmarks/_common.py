@@ -79,8 +79,8 @@ def grow_dataset(root: Path, episodes: int, tasks: str = "reach-v3,push-v3", uni
     import dataclasses
 
     from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+    from adademo_lerobot.core.seeds import derive_seed
     from adademo_lerobot.dataset.store import DemoDataset
-    from adademo_lerobot.seeds import derive_seed
     from adademo_lerobot.suites import MetaWorldSuiteConfig, make_suite
 
     suite = make_suite(MetaWorldSuiteConfig(tasks=tasks))

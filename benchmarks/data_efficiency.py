@@ -50,7 +50,7 @@ from pathlib import Path
 
 from _common import BIN, RESULTS, ROOT, machine_line
 
-from adademo_lerobot.tables import table
+from adademo_lerobot.core.tables import table
 
 RECIPE = ROOT / "recipes" / "budgeted.yaml"
 SUMMARIES = RESULTS / "data_efficiency"  # committed: what `report` is built from
@@ -178,8 +178,9 @@ def branch_from_base(base: Path, arm_dir: Path, flags: list[str]) -> None:
     """An arm starts from a copy of the seed's shared round 0 (dataset, checkpoint, evaluation)."""
     if arm_dir.exists():
         return
-    from adademo_lerobot.cli import parse_config
-    from adademo_lerobot.run import RunConfig, run_settings
+    from adademo_lerobot.loop.cli import parse_config
+    from adademo_lerobot.loop.run import RunConfig
+    from adademo_lerobot.loop.run_state import run_settings
 
     tmp = arm_dir.with_name(arm_dir.name + ".copying")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -295,7 +296,7 @@ def phase_noise(out: Path, arms: list[str], lr_schedule: str | None, train_seeds
 
 def write_summary_table(name: str, text: str) -> None:
     """A `select` or `noise` table, committed beside the arms' summaries; `report` appends it."""
-    from adademo_lerobot.files import atomic_write_text
+    from adademo_lerobot.core.files import atomic_write_text
 
     atomic_write_text(SUMMARIES / f"{name}.md", text + "\n")
     print(text)
@@ -304,11 +305,11 @@ def write_summary_table(name: str, text: str) -> None:
 def export_run(out: Path, seed: int, arm: str) -> Path:
     """A finished arm's figures, small enough to commit: success and demos per task and round, the ledger (without
     machine paths and expert-failed states), the run's settings and the machine."""
+    from adademo_lerobot.core.files import atomic_write_text
+    from adademo_lerobot.dataset.ledger import read_ledger
     from adademo_lerobot.dataset.metadata import read_episode_metadata
-    from adademo_lerobot.failure_map import run_predictability
-    from adademo_lerobot.files import atomic_write_text
-    from adademo_lerobot.ledger import read_ledger
-    from adademo_lerobot.report import load_run
+    from adademo_lerobot.loop.failure_map import run_predictability
+    from adademo_lerobot.loop.report import load_run
 
     run_dir = out / f"seed{seed}" / arm
     eps = read_episode_metadata(run_dir / "dataset")

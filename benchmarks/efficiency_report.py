@@ -4,7 +4,7 @@ Read from the committed summaries (`benchmarks/results/<folder>/seed<S>-<arm>.js
 seed, all from one machine): every arm's curve of average success against the cost it added per task after the
 shared round 0, in demonstrations, expert frames (env steps under the expert's control, failed attempts included)
 and episodes (what a person resets the scene for: expert episodes, kept or failed, and policy rollouts; the
-cost model is `adademo_lerobot/costs.py`). From the curves, per seed:
+cost model is `adademo_lerobot/core/costs.py`). From the curves, per seed:
 
 - the paired difference to Uniform after round 3 and at equal demonstrations, expert frames and episodes (both
   curves read at the smaller of the two final costs);
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from adademo_lerobot import costs
+from adademo_lerobot.core import costs
 
 MEASURES = {"demos": "demonstrations", "frames": "expert frames", "episodes": "episodes"}
 READINGS = {"interpolated": "interpolated", "trained": "at trained policies"}
@@ -560,7 +560,7 @@ def cost_lines(
                 *(("-", "-") if c is None else (fmt_cstar(c.cstar[r]) for r in READINGS)),
             ]
         )
-    from adademo_lerobot.tables import table
+    from adademo_lerobot.core.tables import table
 
     lines = [
         table(
@@ -594,7 +594,7 @@ def cost_lines(
     if inexact:
         lines += [
             "",
-            "Expert episodes known only within bounds (`adademo_lerobot/costs.py`), from the summaries of "
+            "Expert episodes known only within bounds (`adademo_lerobot/core/costs.py`), from the summaries of "
             + "; ".join(f"{arm} ({why})" for arm, why in inexact.items())
             + ": every figure built on them is given at both bounds (low to high), and the episodes panel of "
             "the figure plots the lower.",
@@ -619,7 +619,7 @@ def write_report(
     out: Path,
 ) -> str:
     """The report of every arm in `folder` (markdown at `out`, plot beside it); keeps a hand-written `## Reading`."""
-    from adademo_lerobot.tables import table
+    from adademo_lerobot.core.tables import table
 
     runs = load_runs(folder)
     seeds_of = {arm: sorted(s for a, s in runs if a == arm) for arm, _ in runs}
@@ -756,7 +756,7 @@ def write_report(
         "## Will adaptive collection help on a task? Failure predictability against gains",
         "",
         "Per task: how well the initial state predicts the policy's failure (cross-validated 5-nearest-neighbour "
-        "AUC, `adademo_lerobot/failure_map.py`, mean over the runs' estimates, each over every state its policies "
+        "AUC, `adademo_lerobot/loop/failure_map.py`, mean over the runs' estimates, each over every state its policies "
         "were evaluated on) and each arm's paired gain over Uniform after round 3, in points.",
         "",
     ]

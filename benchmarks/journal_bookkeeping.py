@@ -24,7 +24,7 @@ def main() -> None:
     parser.add_argument("--label", default="this release")
     args = parser.parse_args()
     import adademo_lerobot
-    from adademo_lerobot.ledger import RoundJournal
+    from adademo_lerobot.dataset.ledger import RoundJournal
 
     with tempfile.TemporaryDirectory() as tmp:
         journal = RoundJournal(Path(tmp), 1)

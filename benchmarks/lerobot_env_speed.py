@@ -19,7 +19,7 @@ from _common import BIN, RESULTS, StepClock, loop_speed_args, machine_line, sh, 
 
 TASK = "SO101PickPlace-v0"
 SUITE = ["--suite.type=lerobot_env", "--suite.env.type=so101", "--suite.env.random_block_position=true"]
-EXPERT = "adademo_lerobot.contrib.so101:pick_place"
+EXPERT = "adademo_lerobot.collectors.so101:pick_place"
 
 
 def stock_rate(steps: int = 3000) -> float:
@@ -42,7 +42,7 @@ def main() -> None:
     args = loop_speed_args(30, "evaluation episodes", "expert episodes")
     from adademo_lerobot.collectors import CallableCollectorConfig
     from adademo_lerobot.executors import LocalExecutor
-    from adademo_lerobot.fixed_set import evaluate_fixed_set
+    from adademo_lerobot.loop.evaluate import evaluate_fixed_set
     from adademo_lerobot.suites import LeRobotEnvSuiteConfig, make_suite
 
     suite = make_suite(

@@ -29,7 +29,7 @@ TASKS = ["reach-v3", "push-v3", "drawer-open-v3", "pick-place-v3"]
 
 
 def run_units(executor, suite, ckpt: str, episodes: int, demos: int, seed: int) -> dict:
-    from adademo_lerobot.fixed_set import evaluate_fixed_set
+    from adademo_lerobot.loop.evaluate import evaluate_fixed_set
 
     executor.use_policy(ckpt)
     start = time.perf_counter()
@@ -52,8 +52,8 @@ def run_units(executor, suite, ckpt: str, episodes: int, demos: int, seed: int) 
 def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
     """Per-episode driver work: a journal line with fsync, fetching a result, and appending demos (per demo,
     committed 10 at a time as `--commit_every` does by default)."""
+    from adademo_lerobot.dataset.ledger import RoundJournal
     from adademo_lerobot.dataset.store import DemoDataset
-    from adademo_lerobot.ledger import RoundJournal
 
     journal = RoundJournal(tmp / "journal", 1)
     start = time.perf_counter()

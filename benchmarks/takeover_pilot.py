@@ -19,13 +19,13 @@ import numpy as np
 from _common import RESULTS, machine_line
 
 from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+from adademo_lerobot.collectors.takeover import TakeoverArgs, choose_takeover
+from adademo_lerobot.core.seeds import expansion_state_seed
+from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.metadata import load_suite_config
-from adademo_lerobot.evaluation import BatchedEvaluator
-from adademo_lerobot.policy import load_policy
-from adademo_lerobot.seeds import expansion_state_seed
+from adademo_lerobot.evaluation.policy import load_policy
+from adademo_lerobot.evaluation.rollouts import BatchedEvaluator
 from adademo_lerobot.suites import make_suite
-from adademo_lerobot.tables import table
-from adademo_lerobot.takeover import TakeoverArgs, choose_takeover
 
 # Every setting gets 3 attempts and no fallback here, to see what retries from the same state are worth.
 ATTEMPTS = 3

@@ -22,7 +22,7 @@ from importlib import metadata
 
 
 def preload() -> None:
-    from adademo_lerobot.gl import prefer_loadable_backend
+    from adademo_lerobot.core.gl import prefer_loadable_backend
 
     prefer_loadable_backend()  # as a command does, before anything imports MuJoCo
     import lerobot.datasets.lerobot_dataset  # noqa: F401
@@ -32,13 +32,13 @@ def preload() -> None:
     import metaworld  # noqa: F401
     import torch  # noqa: F401
 
-    import adademo_lerobot.collect  # noqa: F401
-    import adademo_lerobot.expand  # noqa: F401
-    import adademo_lerobot.fixed_set  # noqa: F401
-    import adademo_lerobot.record  # noqa: F401
-    import adademo_lerobot.report  # noqa: F401
-    import adademo_lerobot.run  # noqa: F401
-    import adademo_lerobot.train  # noqa: F401
+    import adademo_lerobot.loop.collect  # noqa: F401
+    import adademo_lerobot.loop.evaluate  # noqa: F401
+    import adademo_lerobot.loop.expand  # noqa: F401
+    import adademo_lerobot.loop.record  # noqa: F401
+    import adademo_lerobot.loop.report  # noqa: F401
+    import adademo_lerobot.loop.run  # noqa: F401
+    import adademo_lerobot.loop.train  # noqa: F401
 
 
 def entry_point(command: str):

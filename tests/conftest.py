@@ -13,7 +13,7 @@ import pytest
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 # The tests render in this process as a command would: the GL backend before anything imports MuJoCo.
-from adademo_lerobot.gl import prefer_loadable_backend  # noqa: E402
+from adademo_lerobot.core.gl import prefer_loadable_backend  # noqa: E402
 
 prefer_loadable_backend()
 # LeRobot's Robot and Teleoperator make a calibration folder under this on creation: not in the user's home.
@@ -25,7 +25,7 @@ def rendering_works() -> bool:
     """Whether this machine renders camera images (checked once, in a child process, as a command would)."""
     global _RENDERING
     if _RENDERING is None:
-        probe = "from adademo_lerobot.gl import check_rendering_works; check_rendering_works()"
+        probe = "from adademo_lerobot.core.gl import check_rendering_works; check_rendering_works()"
         _RENDERING = (
             subprocess.run([sys.executable, "-c", probe], capture_output=True, timeout=120).returncode == 0
         )

@@ -12,12 +12,13 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from adademo_lerobot.algorithm import collect_on_failed_states
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.ledger import RoundJournal, append_ledger, read_ledger
-from adademo_lerobot.records import TaskRoundRecord
-from adademo_lerobot.seeds import expansion_state_seed, plan_state_seeds
-from adademo_lerobot.strategies.base import Outcome, planned_demos
+from adademo_lerobot.core.episodes import TaskRoundRecord
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.seeds import expansion_state_seed, plan_state_seeds
+from adademo_lerobot.dataset.ledger import RoundJournal, append_ledger, read_ledger
+from adademo_lerobot.strategies.algorithm import collect_on_failed_states
+from adademo_lerobot.strategies.base import planned_demos
+from adademo_lerobot.strategies.round_context import Outcome
 from adademo_lerobot.strategies.task_only import TaskOnlyStrategy
 
 
@@ -80,14 +81,14 @@ class ScriptedRound:
         pass
 
 
-@pytest.mark.parametrize("context", ["strategies.base:RoundContext", "record:PersonRound"])
+@pytest.mark.parametrize("context", ["strategies.round_context:RoundContext", "loop.robot_round:PersonRound"])
 def test_both_round_contexts_provide_the_inner_loop(context):
     """A simulated round and a person's are the same `InnerLoop` (members and their parameters), and keep their
     books in the same place."""
     import importlib
     import inspect
 
-    from adademo_lerobot.algorithm import InnerLoop
+    from adademo_lerobot.strategies.algorithm import InnerLoop
     from adademo_lerobot.strategies.bookkeeping import JournaledRound
 
     module, name = context.split(":")

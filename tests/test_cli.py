@@ -6,12 +6,12 @@ from pathlib import Path
 import pytest
 from lerobot.configs.policies import PreTrainedConfig
 
-from adademo_lerobot.cli import parse_config, parse_light
-from adademo_lerobot.configs import ExpandConfig, TrainCommandFlags
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.record import RecordConfig
-from adademo_lerobot.run import RunConfig
-from adademo_lerobot.train import AdaDemoTrainConfig
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.loop.cli import parse_config, parse_light
+from adademo_lerobot.loop.configs import ExpandConfig, TrainCommandFlags
+from adademo_lerobot.loop.record import RecordConfig
+from adademo_lerobot.loop.run import RunConfig
+from adademo_lerobot.loop.train import AdaDemoTrainConfig
 
 RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "quickstart.yaml"
 

@@ -8,12 +8,12 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import assert_cli_error, file_digests, run_cli
 
-from adademo_lerobot.collect import collect_fresh
 from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+from adademo_lerobot.core.seeds import fresh_state_seed
 from adademo_lerobot.dataset.layout import EPISODE_COLUMNS
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.dataset.store import DemoDataset
-from adademo_lerobot.seeds import fresh_state_seed
+from adademo_lerobot.loop.collect import collect_fresh
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig, make_raw_env
 

@@ -12,8 +12,8 @@ from conftest import BIN, assert_cli_error, file_digests, run_cli
 from hub_double import HubDouble
 from test_push import TOKEN, hub_env, run_python
 
+from adademo_lerobot.dataset.ledger import read_ledger
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.ledger import read_ledger
 
 CONTINUE = [
     "--config_path=recipes/continue_from_checkpoint.yaml",
@@ -218,7 +218,7 @@ def test_continue_from_a_hub_dataset_and_checkpoint(hub, reach_push_dataset, che
         from huggingface_hub import HfApi
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-        from adademo_lerobot.hub import _card_validation_on_endpoint
+        from adademo_lerobot.loop.push import _card_validation_on_endpoint
 
         with _card_validation_on_endpoint():  # the card's YAML check would go to huggingface.co
             LeRobotDataset("alice/reach-push", root={str(reach_push_dataset)!r}).push_to_hub()

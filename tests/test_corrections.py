@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from conftest import assert_cli_error, file_digests, run_cli
 
+from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.base import full_state_step, split_full_state
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig

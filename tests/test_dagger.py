@@ -33,9 +33,9 @@ from conftest import (
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.report_costs import person_work
+from adademo_lerobot.loop.report_costs import person_work
+from adademo_lerobot.loop.train import policy_action_mask
 from adademo_lerobot.samplers import frame_weights, make_sampling_scheme
-from adademo_lerobot.train import policy_action_mask
 
 SIM = ["--robot.type=adademo_sim", "--robot.tasks=reach-v3,push-v3", "--robot.image_size=32"]
 TASK = "reach-v3"

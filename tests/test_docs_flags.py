@@ -2,7 +2,7 @@
 every default they give is the config dataclass's.
 
 The commands and their configs are read where the commands get them: pyproject.toml's console scripts, each
-calling `run_command(target, Config[, "module:FullConfig"])` (`adademo_lerobot/cli.py`). A flag is a dotted path
+calling `run_command(target, Config[, "module:FullConfig"])` (`adademo_lerobot/loop/cli.py`). A flag is a dotted path
 through that config's dataclass fields, through every registered type of a choice (`--suite.*`, `--collector.*`,
 `--strategy.*`; under a heading that names one type in backquotes, as expand.md's per strategy, only that
 type's fields) and through LeRobot's policy configs; a LeRobot env config given flag by flag (`--suite.env.*`) is
@@ -36,7 +36,7 @@ from pathlib import Path
 import draccus
 import pytest
 
-from adademo_lerobot.configs import LEROBOT_CHOICE
+from adademo_lerobot.loop.configs import LEROBOT_CHOICE
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md")])
@@ -56,7 +56,7 @@ REMOVED_FLAGS = {
     "posterior_decay": "now --strategy.posterior_decay",
     "train.torch_threads": "now --torch_threads",
 }
-# Every command takes these (`adademo_lerobot/cli.py`: draccus' help, and recipes and presets).
+# Every command takes these (`adademo_lerobot/loop/cli.py`: draccus' help, and recipes and presets).
 UNIVERSAL_FLAGS = {"help", "config_path"}
 # extending.md's stand-in for any registry of types (`--x.type=mine`, `--x.FIELD`).
 PLACEHOLDERS = {"x"}
@@ -66,7 +66,7 @@ NO_VALUE = {"-", "none", "required", "null"}
 FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9_]*(?:\.(?:[a-z0-9_]+|\*))*)(\.)?(?![\w-])(?:=(\S+))?")
 SPAN = re.compile(r"`([^`]+)`")
 FENCE = re.compile(r"^\s*(```|~~~)")
-COMMAND = re.compile(r"^(?:adademo-([a-z]+)|\S*adademo_lerobot\.scripts\.([a-z]+))$")
+COMMAND = re.compile(r"^(?:adademo-([a-z]+)|\S*adademo_lerobot\.commands\.([a-z]+))$")
 FOREIGN_SECTION = re.compile(r"\blerobot-(?:eval|train|record)\b")
 # Prose defaults right after a flag's code span.
 DEFAULT_GIVEN = re.compile(r"^\s*\(default:?\s+(`[^`]+`|[^);,`]+)")
@@ -151,7 +151,7 @@ def resolve(cls: type, parts: list[str], scope: frozenset[str]) -> list[Field] |
     f = fields[name]
     tp = non_optional(typing.get_type_hints(cls)[name])
     if f.metadata.get(LEROBOT_CHOICE) == "policy":
-        from adademo_lerobot.cli import lerobot_choice_type
+        from adademo_lerobot.loop.cli import lerobot_choice_type
 
         tp = lerobot_choice_type("policy")
     elif LEROBOT_CHOICE in f.metadata:
@@ -424,7 +424,7 @@ def problems(page: Path) -> list[str]:
 @cache
 def lerobot_main_flags() -> frozenset[str]:
     """`lerobot-train` flags of LeRobot main only, which adademo-train refuses (train.md names them)."""
-    from adademo_lerobot import lerobot_training
+    from adademo_lerobot.loop import lerobot_training
 
     return frozenset(lerobot_training._NEWER_FLAGS)
 

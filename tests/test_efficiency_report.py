@@ -1,5 +1,5 @@
 """The benchmark report's arithmetic (benchmarks/efficiency_report.py) and the cost model it shares with
-adademo-report (adademo_lerobot/costs.py) on small hand-computed curves: the costs read off interpolated
+adademo-report (adademo_lerobot/core/costs.py) on small hand-computed curves: the costs read off interpolated
 curves, episodes and the break-even rollout cost c*, the paired differences, their t-intervals and the goal
 verdicts the results files print."""
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adademo_lerobot import costs
+from adademo_lerobot.core import costs
 
 SPEC = importlib.util.spec_from_file_location(
     "efficiency_report", Path(__file__).parents[1] / "benchmarks" / "efficiency_report.py"

@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 from conftest import assert_cli_error, run_cli
 
-from adademo_lerobot.evaluation import BatchedEvaluator
-from adademo_lerobot.policy import load_policy
-from adademo_lerobot.seeds import evaluation_seeds
+from adademo_lerobot.core.seeds import evaluation_seeds
+from adademo_lerobot.evaluation.policy import load_policy
+from adademo_lerobot.evaluation.rollouts import BatchedEvaluator
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 

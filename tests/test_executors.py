@@ -20,8 +20,8 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import BIN, run_cli
 
+from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.ledger import read_ledger, read_round_evaluations
 
 pytest.importorskip("ray")
 

@@ -13,11 +13,11 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import BIN, TINY_ACT_POLICY, assert_cli_error, file_digests, run_cli
 
+from adademo_lerobot.core.files import exclusive_use
+from adademo_lerobot.core.seeds import expansion_state_seed, fresh_state_seed
+from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.dataset.store import recover_interrupted_write
-from adademo_lerobot.files import exclusive_use
-from adademo_lerobot.ledger import read_ledger, read_round_evaluations
-from adademo_lerobot.seeds import expansion_state_seed, fresh_state_seed
 from adademo_lerobot.strategies import planned_demos
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig

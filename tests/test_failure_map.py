@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from adademo_lerobot.failure_map import auc, predictability
+from adademo_lerobot.loop.failure_map import auc, predictability
 
 
 def test_auc_is_the_probability_a_failure_outscores_a_success():

@@ -46,7 +46,7 @@ def without_gl(*command: str, env: dict | None = None) -> subprocess.CompletedPr
 
 def test_without_opengl_the_package_imports_and_pixels_fail_with_one_line(tmp_path):
     probe = (
-        "import adademo_lerobot.scripts, adademo_lerobot.gl as gl, mujoco; "
+        "import adademo_lerobot.commands, adademo_lerobot.core.gl as gl, mujoco; "
         "print('osmesa', gl.library_loads('OSMesa'), 'egl', gl.library_loads('EGL'))"
     )
     # Even an explicit MUJOCO_GL=osmesa, which makes `import mujoco` itself fail without libOSMesa, imports in a

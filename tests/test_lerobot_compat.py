@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from conftest import BIN, TINY_ACT, run_cli
 
+from adademo_lerobot.dataset.ledger import read_ledger
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.ledger import read_ledger
 
 FIXTURES = Path(__file__).parent / "fixtures" / "lerobot044"
 
@@ -220,8 +220,8 @@ def test_the_training_api_detected_is_the_installed_lerobots_and_a_checkpoint_re
     from lerobot.policies.act.configuration_act import ACTConfig
     from lerobot.policies.act.modeling_act import ACTPolicy
 
-    from adademo_lerobot import lerobot_training
-    from adademo_lerobot.train import (
+    from adademo_lerobot.loop import lerobot_training
+    from adademo_lerobot.loop.train import (
         AdaDemoTrainConfig,
         TrainDatasetConfig,
         find_last_checkpoint,
@@ -309,8 +309,8 @@ def test_lerobot_train_flags_newer_than_0_6_1_are_refused_where_installed():
 
     from lerobot.configs.train import TrainPipelineConfig
 
-    from adademo_lerobot.lerobot_training import NEWER_UNIMPLEMENTED_FLAGS
-    from adademo_lerobot.train import NOT_IMPLEMENTED
+    from adademo_lerobot.loop.lerobot_training import NEWER_UNIMPLEMENTED_FLAGS
+    from adademo_lerobot.loop.train import NOT_IMPLEMENTED
 
     assert set(NEWER_UNIMPLEMENTED_FLAGS) <= set(NOT_IMPLEMENTED)
     installed = {f.name for f in dataclasses.fields(TrainPipelineConfig)}

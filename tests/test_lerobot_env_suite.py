@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from conftest import BIN, TINY_ACT_POLICY, assert_cli_error, file_digests, run_cli
 
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.errors import AdaDemoError
 
 if importlib.util.find_spec("lerobot_env_so101") is None:
     if os.environ.get("CI") == "true":
@@ -33,7 +33,7 @@ SO101 = [
     "--suite.env.random_block_position=true",
     f"--suite.tasks={TASK}",
 ]
-EXPERT = ["--collector.type=callable", "--collector.entry=adademo_lerobot.contrib.so101:pick_place"]
+EXPERT = ["--collector.type=callable", "--collector.entry=adademo_lerobot.collectors.so101:pick_place"]
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,7 @@ def test_every_episode_replays_from_its_seed_in_the_stock_package(so101_dataset)
 
     eps = read_episode_metadata(so101_dataset)
     assert len(eps) == 3 and set(eps["adademo/collector"]) == {
-        "callable:adademo_lerobot.contrib.so101:pick_place"
+        "callable:adademo_lerobot.collectors.so101:pick_place"
     }
     env = stock_env()
     for index, row in eps.iterrows():

@@ -15,7 +15,7 @@ import pytest
 from conftest import BIN, file_digests, run_cli
 from hub_double import HubDouble
 
-from adademo_lerobot.hub import adademo_card_section
+from adademo_lerobot.loop.push import adademo_card_section
 
 TOKEN = f"hf_adademoTest{secrets.token_hex(12)}"
 
@@ -310,7 +310,7 @@ def test_checkpoint_round_trips_through_a_model_repo(hub, act_run, tmp_path, mon
         import json
         import torch
         from huggingface_hub import snapshot_download
-        from adademo_lerobot.policy import load_policy
+        from adademo_lerobot.evaluation.policy import load_policy
 
         path = snapshot_download("alice/tiny-act")
         remote, local = load_policy(path), load_policy({str(ckpt)!r})
@@ -372,7 +372,7 @@ def test_card_validation_goes_to_the_endpoint_through_the_users_client(hub, monk
     from huggingface_hub import constants, get_session, set_client_factory
     from huggingface_hub.utils import _http
 
-    from adademo_lerobot.hub import HARDCODED_CARD_VALIDATION_URL, _card_validation_on_endpoint
+    from adademo_lerobot.loop.push import HARDCODED_CARD_VALIDATION_URL, _card_validation_on_endpoint
 
     in_process_like_children(monkeypatch)
     monkeypatch.setattr(constants, "ENDPOINT", hub.url)

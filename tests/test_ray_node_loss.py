@@ -18,8 +18,8 @@ from conftest import BIN, run_cli
 from test_executors import same_round
 
 from adademo_lerobot.dataset.layout import TXN_FILE
+from adademo_lerobot.dataset.ledger import read_ledger
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.ledger import read_ledger
 
 psutil = pytest.importorskip("psutil")
 pytest.importorskip("ray")

@@ -25,9 +25,9 @@ from conftest import (
 )
 
 from adademo_lerobot.dataset.check import check_dataset_integrity
+from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.ledger import read_ledger, read_round_evaluations
-from adademo_lerobot.record import predicted_demos
+from adademo_lerobot.loop.record import predicted_demos
 
 SIM = ["--robot.type=adademo_sim", "--robot.tasks=reach-v3,push-v3", "--robot.image_size=32"]
 # The strategy flags are adademo-expand's (--strategy.type=adademo by default).

@@ -9,10 +9,10 @@ import time
 import pytest
 from conftest import BIN, assert_cli_error, run_cli
 
+from adademo_lerobot.core.files import exclusive_use
+from adademo_lerobot.core.seeds import evaluation_seeds
+from adademo_lerobot.dataset.ledger import read_ledger
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.files import exclusive_use
-from adademo_lerobot.ledger import read_ledger
-from adademo_lerobot.seeds import evaluation_seeds
 
 STAGES = ["collect", "train-0", "eval-0", "expand-1", "train-1", "eval-1"]
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -139,9 +139,9 @@ def training_step(run_dir, i: int) -> int:
 KILLED_AFTER_THE_LEDGER = """
 import os
 
-import adademo_lerobot.scripts  # noqa: F401  (the process settings of a command)
-from adademo_lerobot.cli import run_command
-from adademo_lerobot.run import RunConfig, run
+import adademo_lerobot.commands  # noqa: F401  (the process settings of a command)
+from adademo_lerobot.loop.cli import run_command
+from adademo_lerobot.loop.run import RunConfig, run
 
 run_command(lambda cfg: run(cfg, on_ledger_written=lambda r: os.kill(os.getpid(), 9)), RunConfig)
 """
@@ -235,8 +235,8 @@ def test_run_bad_input(tmp_path):
 
 
 def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_resumes(tmp_path):
-    from adademo_lerobot.errors import AdaDemoError
-    from adademo_lerobot.run import RunState
+    from adademo_lerobot.core.errors import AdaDemoError
+    from adademo_lerobot.loop.run_state import RunState
 
     RunState(tmp_path, {"strategy": "adademo", "lr_schedule": "preset"})
     with pytest.raises(AdaDemoError, match="lr_schedule"):
@@ -253,8 +253,8 @@ def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_
 
 
 def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_type_checked(tmp_path):
-    from adademo_lerobot.errors import AdaDemoError
-    from adademo_lerobot.run import RunState
+    from adademo_lerobot.core.errors import AdaDemoError
+    from adademo_lerobot.loop.run_state import RunState
 
     (tmp_path / "run_state.json").write_text(  # 0.2: the strategy was a name, its values top-level flags
         json.dumps({"settings": {"strategy": "uniform", "budget": [32, 48]}, "done": {"collect": {}}})
@@ -272,7 +272,7 @@ def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_ty
 
 
 def test_a_resumed_stage_reports_the_seconds_of_every_invocation_that_worked_on_it(tmp_path):
-    from adademo_lerobot.run import RunState
+    from adademo_lerobot.loop.run_state import RunState
 
     settings = {
         "strategy": {"type": "uniform"},

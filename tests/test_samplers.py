@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.samplers import floor_shares, frame_weights, make_sampling_scheme
 from adademo_lerobot.samplers.weighted_sampler import WeightedFrameSampler
 

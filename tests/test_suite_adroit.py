@@ -9,8 +9,8 @@ import pytest
 from conftest import requires_rendering, run_cli
 
 from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites import make_suite, suite_config_from_dict
 from adademo_lerobot.suites.adroit import (
     OBS_DIM,

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from conftest import TINY_ACT, requires_rendering, run_cli
 
-from adademo_lerobot.collect import collect_fresh
 from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.dataset.store import DemoDataset
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.loop.collect import collect_fresh
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.adroit import AdroitSuiteConfig
 from adademo_lerobot.suites.fetch import FetchSuiteConfig
@@ -226,7 +226,7 @@ def test_pixels_state_adds_a_camera_image_and_keeps_the_state_exact(name):
 @pytest.mark.parametrize("name", CASES)
 def test_one_adademo_expand_round(name, tmp_path):
     """The same commands work unchanged on every suite: collect, train a weak ACT, expand one round."""
-    from adademo_lerobot.ledger import read_ledger
+    from adademo_lerobot.dataset.ledger import read_ledger
 
     case = CASES[name]
     root = tmp_path / name

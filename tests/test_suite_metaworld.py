@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites import make_suite, suite_config_from_dict
 from adademo_lerobot.suites.metaworld import MT10, MetaWorldSuiteConfig, make_raw_env
 

@@ -1,18 +1,18 @@
-"""Where the expert takes over a failed rollout (`adademo_lerobot.takeover`): the rules on hand-made rollouts, in
+"""Where the expert takes over a failed rollout (`adademo_lerobot.collectors.takeover`): the rules on hand-made rollouts, in
 milliseconds, and the whole simulator state that a correction starts from, restored at random steps."""
 
 import numpy as np
 import pytest
 
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.records import RolloutTrace
-from adademo_lerobot.takeover import (
+from adademo_lerobot.collectors.takeover import (
     TakeoverArgs,
     check_demo_start,
     first_disagreement,
     stall_step,
     takeover_step,
 )
+from adademo_lerobot.core.episodes import RolloutTrace
+from adademo_lerobot.core.errors import AdaDemoError
 
 
 def trace_of(observations: list[list[float]], actions: list[list[float]]) -> RolloutTrace:

@@ -122,7 +122,7 @@ def test_resume_after_kill_loses_at_most_the_steps_since_the_last_checkpoint(rea
         time.sleep(0.2)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    from adademo_lerobot.train import find_last_checkpoint
+    from adademo_lerobot.loop.train import find_last_checkpoint
 
     last = find_last_checkpoint(out)
     assert int(last.name) >= 6
@@ -300,7 +300,7 @@ def test_trains_under_accelerate_launch_with_two_cpu_processes(reach_push_datase
             "--mixed_precision=no",
             "--dynamo_backend=no",
             "-m",
-            "adademo_lerobot.scripts.train",
+            "adademo_lerobot.commands.train",
             *data_args(reach_push_dataset),
             *TINY_ACT,
             "--steps=6",
@@ -333,7 +333,7 @@ def test_trains_and_resumes_under_torchrun_with_two_cpu_processes(reach_push_dat
     ]
     for steps, resume in ((3, "false"), (6, "true")):
         proc = subprocess.run(
-            [str(BIN / "torchrun"), "--nproc-per-node=2", "-m", "adademo_lerobot.scripts.train", *args]
+            [str(BIN / "torchrun"), "--nproc-per-node=2", "-m", "adademo_lerobot.commands.train", *args]
             + [f"--steps={steps}", f"--resume={resume}"],
             capture_output=True,
             text=True,

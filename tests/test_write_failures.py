@@ -23,8 +23,8 @@ import pytest
 from conftest import BIN, TINY_ACT, file_digests, run_cli
 
 from adademo_lerobot.dataset.layout import ADADEMO_DIR, TXN_FILE
+from adademo_lerobot.dataset.ledger import read_ledger
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.ledger import read_ledger
 
 UNIFORM = ["--strategy.type=uniform", "--strategy.demos_per_task=2"]
 
@@ -195,9 +195,9 @@ def test_an_exception_inside_lerobots_finalize_is_rolled_back(reach_push_dataset
     """A fault injected where LeRobot's `finalize` closes its parquet writer (an I/O error), in this process."""
     import pyarrow.parquet as pq
 
-    from adademo_lerobot.collect import collect_fresh
+    from adademo_lerobot.core.errors import MachineError
     from adademo_lerobot.dataset.store import DemoDataset
-    from adademo_lerobot.errors import MachineError
+    from adademo_lerobot.loop.collect import collect_fresh
     from adademo_lerobot.suites import make_suite
     from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 

@@ -32,7 +32,7 @@ import mujoco
 import numpy as np
 
 from adademo_lerobot.collectors.base import SimulatedExpertCollector
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites.adroit import (
     ACTION_DIM,
     TASK_BLOCKS,

@@ -15,12 +15,12 @@ from typing import Protocol
 import draccus
 import numpy as np
 
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.recording import EpisodeRecorder
-from adademo_lerobot.records import CollectionResult, Demonstration
-from adademo_lerobot.seeds import retry_noise_seed
+from adademo_lerobot.collectors.takeover import TakeoverArgs
+from adademo_lerobot.core.episodes import CollectionResult, Demonstration
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.seeds import retry_noise_seed
+from adademo_lerobot.dataset.recorder import EpisodeRecorder
 from adademo_lerobot.suites.base import TaskSuite, cached_for_task, full_state_step
-from adademo_lerobot.takeover import TakeoverArgs
 
 
 @dataclass

@@ -17,7 +17,7 @@ from typing import ClassVar
 import numpy as np
 
 from adademo_lerobot.collectors.base import CollectorConfig, ExpertCollector, SimulatedExpertCollector
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites.base import TaskSuite
 
 

@@ -3,7 +3,7 @@
 Two kinds of `path`:
 
 - a LeRobot checkpoint folder (`.../pretrained_model` with `config.json` and `model.safetensors`), loaded with
-  its pre/post-processors and checked against the suite's features (`adademo_lerobot.policy`); it acts exactly as in `adademo-eval` (batch of one,
+  its pre/post-processors and checked against the suite's features (`adademo_lerobot.evaluation.policy`); it acts exactly as in `adademo-eval` (batch of one,
   the task description as `task`, `policy.reset()` at the start of every attempt, action chunks as the policy
   queues them);
 - a TorchScript file (`torch.jit.save`): a module mapping the `environment_state` vector, a float32 tensor of
@@ -24,9 +24,9 @@ from typing import ClassVar
 import numpy as np
 
 from adademo_lerobot.collectors.base import CollectorConfig, ExpertCollector, SimulatedExpertCollector
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.features import dataset_features
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.policy import load_checked_policy
+from adademo_lerobot.evaluation.policy import load_checked_policy
 from adademo_lerobot.suites.base import TaskSuite
 
 

@@ -8,7 +8,7 @@ from adademo_lerobot.collectors.adroit_scripted import AdroitScriptedExpert
 from adademo_lerobot.collectors.base import CollectorConfig, ExpertCollector
 from adademo_lerobot.collectors.fetch_scripted import FetchScriptedExpert
 from adademo_lerobot.collectors.metaworld_scripted import MetaWorldScriptedExpert
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites.base import TaskSuite
 
 SCRIPTED_EXPERTS = {

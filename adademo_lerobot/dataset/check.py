@@ -12,8 +12,9 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from adademo_lerobot.dataset.metadata import data_files, episode_files, read_info
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.dataset.info import read_info
+from adademo_lerobot.dataset.metadata import data_files, episode_files
 
 
 def _footer(path: Path, root: Path) -> pq.FileMetaData:

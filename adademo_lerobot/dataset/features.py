@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites.base import TaskSuite
 
 

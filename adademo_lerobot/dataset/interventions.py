@@ -21,13 +21,14 @@ files, the same for stock LeRobot and for us.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.layout import (
     COL_COLLECTOR,
     COL_SOURCE,
@@ -37,14 +38,9 @@ from adademo_lerobot.dataset.layout import (
     PERSON_COLLECTOR,
     POLICY_SOURCE,
 )
-from adademo_lerobot.errors import AdaDemoError
 
 # The per-frame features LeRobot's writer fills in itself (lerobot.datasets.utils.DEFAULT_FEATURES, format v3.0).
 LEROBOT_FRAME_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
-
-
-def _info(root: Path) -> dict:
-    return json.loads((Path(root) / "meta" / "info.json").read_text())
 
 
 def has_interventions(features: dict) -> bool:
@@ -56,7 +52,7 @@ def has_interventions(features: dict) -> bool:
 def intervention_flags(root: str | Path) -> np.ndarray | None:
     """Per frame, in the dataset's `index` order: whether a person drove it; None without the feature."""
     root = Path(root)
-    info = _info(root)
+    info = read_info(root)
     if not has_interventions(info.get("features", {})):
         return None
     flags = np.zeros(int(info.get("total_frames", 0)), dtype=bool)
@@ -137,7 +133,7 @@ def carried_frame_values(features: dict) -> dict[str, np.ndarray]:
 def check_writable_features(root: str | Path, produced: dict | list, who: str) -> None:
     """Refuse, before anything is recorded, a dataset with a feature that `who` neither produces nor carries:
     LeRobot's writer would refuse every frame of it (after the person's work)."""
-    found = _info(root).get("features", {})
+    found = read_info(root).get("features", {})
     carried = carried_frame_values(found)
     unknown = [k for k in found if k not in produced and k not in carried and k not in LEROBOT_FRAME_FEATURES]
     if unknown:

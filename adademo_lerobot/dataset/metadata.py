@@ -20,6 +20,8 @@ import pandas as pd
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.interventions import apply_provenance, intervention_flags
 from adademo_lerobot.dataset.layout import (
     COL_COLLECTOR,
@@ -34,7 +36,6 @@ from adademo_lerobot.dataset.layout import (
     IMPORTED_SOURCE,
     SUITE_FILE,
 )
-from adademo_lerobot.errors import AdaDemoError
 from adademo_lerobot.suites import SuiteConfig, suite_config_from_dict
 
 ENV_STATE_KEY = "observation.environment_state"
@@ -43,18 +44,6 @@ IMAGES_PREFIX = "observation.images."
 
 def has_dataset(root: str | Path) -> bool:
     return (Path(root) / "meta" / "info.json").exists()
-
-
-def read_info(root: str | Path) -> dict:
-    path = Path(root) / "meta" / "info.json"
-    if not path.exists():
-        raise AdaDemoError(f"no LeRobot dataset at {root} (missing meta/info.json)")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise AdaDemoError(
-            f"{path} is not valid JSON ({err.msg} at line {err.lineno}); the dataset is damaged"
-        ) from None
 
 
 def episode_files(root: str | Path) -> list[Path]:

@@ -1,5 +1,8 @@
 """A standard LeRobot v3.0 dataset that remembers each episode's initial state and provenance.
 
+Longer than 400 lines: the write transaction (backups, the signal-deferred commit, the rollback) and the one
+class that uses it are kept together, so that every way to write the dataset is seen to go through it.
+
 Our extras are extra columns in `meta/episodes` (`adademo/*`) and files under `meta/adademo/`; the format is
 never forked, so stock `LeRobotDataset(repo_id, root=...)` opens every dataset written here.
 
@@ -33,6 +36,15 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from adademo_lerobot.core.episodes import Demonstration
+from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_cause
+from adademo_lerobot.core.files import (
+    COMMIT_LOCK,
+    atomic_write_json,
+    atomic_write_text,
+    check_writable_location,
+)
+from adademo_lerobot.core.patching import temporarily_set
 from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.interventions import (
     apply_provenance,
@@ -64,10 +76,6 @@ from adademo_lerobot.dataset.metadata import (
     read_episode_metadata,
 )
 from adademo_lerobot.dataset.video import video_backend
-from adademo_lerobot.errors import AdaDemoError, MachineError, machine_cause
-from adademo_lerobot.files import COMMIT_LOCK, atomic_write_json, atomic_write_text, check_writable_location
-from adademo_lerobot.patching import temporarily_set
-from adademo_lerobot.records import Demonstration
 from adademo_lerobot.suites import SuiteConfig, TaskSuite
 
 REWRITTEN_META = ("meta/info.json", "meta/stats.json", "meta/tasks.parquet")

@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from adademo_lerobot.collectors import CollectorConfig
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.collectors.takeover import TakeoverArgs
+from adademo_lerobot.core.episodes import CollectionResult, EpisodeRecord
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.executors.worker import EpisodeWorker
-from adademo_lerobot.records import CollectionResult, EpisodeRecord
 from adademo_lerobot.suites import TaskSuite
-from adademo_lerobot.takeover import TakeoverArgs
 
 EXECUTORS = ("local", "ray")
 

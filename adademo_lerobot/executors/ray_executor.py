@@ -19,11 +19,11 @@ import threading
 import time
 
 from adademo_lerobot.collectors import CollectorConfig
-from adademo_lerobot.errors import AdaDemoError, LostRayClusterError
+from adademo_lerobot.collectors.takeover import TakeoverArgs
+from adademo_lerobot.core.errors import AdaDemoError, LostRayClusterError
 from adademo_lerobot.executors import RayArgs
 from adademo_lerobot.executors.worker import EpisodeWorker
 from adademo_lerobot.suites import TaskSuite
-from adademo_lerobot.takeover import TakeoverArgs
 
 # Results are waited for in slices of this length; the cluster's health is checked at most this often, and no
 # check waits longer than this (a GCS client call would otherwise retry for a minute when the GCS is gone).

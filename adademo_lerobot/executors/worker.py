@@ -13,9 +13,9 @@ import os
 import numpy as np
 
 from adademo_lerobot.collectors import CollectorConfig, make_collector
-from adademo_lerobot.records import CollectionResult, EpisodeRecord
+from adademo_lerobot.collectors.takeover import TakeoverArgs
+from adademo_lerobot.core.episodes import CollectionResult, EpisodeRecord
 from adademo_lerobot.suites import make_suite, suite_config_from_dict
-from adademo_lerobot.takeover import TakeoverArgs
 
 
 class EpisodeWorker:
@@ -47,8 +47,8 @@ class EpisodeWorker:
         """Load the round's policy (once: a worker keeps it until the path changes)."""
         if path == self._policy_path:
             return
-        from adademo_lerobot.evaluation import BatchedEvaluator
-        from adademo_lerobot.policy import load_policy
+        from adademo_lerobot.evaluation.policy import load_policy
+        from adademo_lerobot.evaluation.rollouts import BatchedEvaluator
 
         if self._evaluator is not None:
             self._evaluator.close()
@@ -67,8 +67,8 @@ class EpisodeWorker:
         self.use_policy(policy_path)  # a restarted worker (after a crash) loads the policy again here
         if takeover is None:
             return self._evaluator.run(task, seeds)
-        from adademo_lerobot.evaluation import one_torch_thread
-        from adademo_lerobot.takeover import choose_takeover
+        from adademo_lerobot.collectors.takeover import choose_takeover
+        from adademo_lerobot.evaluation.rollouts import one_torch_thread
 
         records = []
         for record, trace in self._evaluator.run_traced(task, seeds):
@@ -89,7 +89,9 @@ class EpisodeWorker:
     ) -> CollectionResult:
         """A demonstration from the seed's initial state, or, for a correction, from `start_state` (`takeover`:
         how many attempts there, and what when they fail)."""
-        from adademo_lerobot.evaluation import one_torch_thread  # a policy expert acts as it would locally
+        from adademo_lerobot.evaluation.rollouts import (
+            one_torch_thread,  # a policy expert acts as it would locally
+        )
 
         start = None if start_state is None else np.asarray(start_state, np.float64)
         initial = self.suite.sample_initial_state(task, seed)

@@ -5,6 +5,6 @@ tiny distributions in `plugins/` (named `lerobot_env_*`, `lerobot_robot_*`, `ler
 LeRobot's commands import the plugins before anything renders: they pick the GL backend here, as our commands do.
 """
 
-from adademo_lerobot.gl import prefer_loadable_backend
+from adademo_lerobot.core.gl import prefer_loadable_backend
 
 prefer_loadable_backend()

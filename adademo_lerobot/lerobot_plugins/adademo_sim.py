@@ -17,8 +17,8 @@ import numpy as np
 from lerobot.robots.robot import Robot
 from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
 
+from adademo_lerobot.core.seeds import derive_seed
 from adademo_lerobot.lerobot_plugins.config_adademo_sim import AdademoSimConfig
-from adademo_lerobot.seeds import derive_seed
 
 JOINTS = ("x.pos", "y.pos", "z.pos", "gripper.pos")
 ACTIONS = ("x.vel", "y.vel", "z.vel", "gripper.vel")

@@ -5,11 +5,11 @@ from adademo_lerobot.strategies.adademo import AdaDemoConfig
 from adademo_lerobot.strategies.base import (
     ExpansionStrategy,
     PerRound,
-    RoundContext,
     StrategyConfig,
     planned_demos,
 )
 from adademo_lerobot.strategies.budgeted import BudgetedConfig
+from adademo_lerobot.strategies.round_context import RoundContext
 from adademo_lerobot.strategies.task_only import TaskOnlyConfig
 from adademo_lerobot.strategies.uniform import UniformConfig
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from adademo_lerobot.algorithm import InnerLoop, collect_on_failed_states
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.core.episodes import TaskRoundRecord
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.strategies.algorithm import InnerLoop, collect_on_failed_states
 from adademo_lerobot.strategies.base import (
     DEFAULT_TARGET_SUCCESSES,
     PerRound,

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from adademo_lerobot.core.episodes import Demonstration, TaskRoundRecord
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
+from adademo_lerobot.dataset.ledger import RoundJournal
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
-from adademo_lerobot.ledger import RoundJournal
-from adademo_lerobot.records import Demonstration, TaskRoundRecord
 
 
 def demo_entry(task: str, seed: int, demo: Demonstration, steps: int) -> dict:

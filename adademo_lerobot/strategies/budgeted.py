@@ -30,11 +30,11 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from adademo_lerobot.algorithm import InnerLoop
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.records import TaskRoundRecord
-from adademo_lerobot.seeds import expansion_state_seed
+from adademo_lerobot.core.episodes import TaskRoundRecord
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.seeds import expansion_state_seed
 from adademo_lerobot.strategies.adademo import check_decay, check_eval_bound
+from adademo_lerobot.strategies.algorithm import InnerLoop
 from adademo_lerobot.strategies.base import (
     PerRound,
     StrategyConfig,

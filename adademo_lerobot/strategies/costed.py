@@ -32,9 +32,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from adademo_lerobot.ledger import read_round_evaluations
-from adademo_lerobot.records import TaskRoundRecord
-from adademo_lerobot.seeds import expansion_state_seed, fresh_state_seed
+from adademo_lerobot.core.episodes import TaskRoundRecord
+from adademo_lerobot.core.seeds import expansion_state_seed, fresh_state_seed
+from adademo_lerobot.dataset.ledger import read_round_evaluations
 from adademo_lerobot.strategies.estimates import (
     allocate,
     count_outcomes,
@@ -44,8 +44,8 @@ from adademo_lerobot.strategies.estimates import (
 )
 
 if TYPE_CHECKING:
-    from adademo_lerobot.strategies.base import RoundContext
     from adademo_lerobot.strategies.budgeted import BudgetedStrategy
+    from adademo_lerobot.strategies.round_context import RoundContext
 
 RANKINGS = ("random", "knn")
 DEFAULT_FAILURE_WORTH = 3.0  # W: the paper reaches Uniform's result with about a third of the data

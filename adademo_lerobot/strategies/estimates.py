@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from adademo_lerobot.ledger import read_round_evaluations
+from adademo_lerobot.dataset.ledger import read_round_evaluations
 
 DEFAULT_DECAY = 0.5  # weight of a round's outcomes per round since
 

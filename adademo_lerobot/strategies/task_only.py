@@ -12,14 +12,13 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.records import TaskRoundRecord
-from adademo_lerobot.seeds import plan_state_seeds
+from adademo_lerobot.core.episodes import TaskRoundRecord
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.seeds import plan_state_seeds
 from adademo_lerobot.strategies.adademo import check_decay, check_eval_bound
 from adademo_lerobot.strategies.base import (
     DEFAULT_TARGET_SUCCESSES,
     PerRound,
-    RoundContext,
     StrategyConfig,
     check_per_round,
     per_round,
@@ -27,6 +26,7 @@ from adademo_lerobot.strategies.base import (
 )
 from adademo_lerobot.strategies.budgeted import BudgetedConfig, BudgetedStrategy
 from adademo_lerobot.strategies.estimates import DEFAULT_DECAY
+from adademo_lerobot.strategies.round_context import RoundContext
 
 
 def estimate_success(ctx: RoundContext, task: str, record: TaskRoundRecord, episodes: int) -> float:

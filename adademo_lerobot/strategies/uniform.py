@@ -5,16 +5,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.records import TaskRoundRecord
+from adademo_lerobot.core.episodes import TaskRoundRecord
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.strategies.base import (
     PerRound,
-    RoundContext,
     StrategyConfig,
     check_per_round,
     per_round,
     split_evenly,
 )
+from adademo_lerobot.strategies.round_context import RoundContext
 
 
 @StrategyConfig.register_subclass("uniform")

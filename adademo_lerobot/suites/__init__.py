@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites.adroit import AdroitSuiteConfig
 from adademo_lerobot.suites.base import SuiteConfig, TaskSuite
 from adademo_lerobot.suites.fetch import FetchSuiteConfig

@@ -60,7 +60,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from adademo_lerobot.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites.base import SuiteConfig
 from adademo_lerobot.suites.gym_robotics import (
     DEFAULT_CAMERA,

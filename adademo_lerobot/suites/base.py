@@ -1,5 +1,8 @@
 """The task-suite protocol every benchmark family implements.
 
+Longer than 400 lines: the protocol, the config registry and the one env base class (`SuiteTaskEnv`: exact
+restores, full-state steps) every family builds on are one contract, read together by whoever adds a suite.
+
 A suite knows its task list (whose order defines the task one-hot), builds one env per task, samples an
 initial state from a seed and restores any recorded initial state exactly. Envs are plain gymnasium envs with
 dict observations in LeRobot's env convention (`agent_pos`, `environment_state`, optional `pixels`), so
@@ -21,8 +24,8 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.gl import check_rendering_works
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.gl import check_rendering_works
 
 OBS_TYPES = ("state", "pixels_state")
 # MuJoCo's integration state (mj_getState): time, qpos, qvel, act, warm start, ctrl, applied forces, equality

@@ -17,9 +17,9 @@ from functools import cached_property, partial
 import mujoco
 import numpy as np
 
-from adademo_lerobot.errors import AdaDemoError
-from adademo_lerobot.gl import check_rendering_works
-from adademo_lerobot.patching import temporarily_set
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.gl import check_rendering_works
+from adademo_lerobot.core.patching import temporarily_set
 from adademo_lerobot.suites.base import (
     SuiteBase,
     SuiteConfig,

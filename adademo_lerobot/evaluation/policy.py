@@ -1,0 +1,96 @@
+"""Loading a LeRobot policy checkpoint and checking that it reads and writes a suite's features.
+
+Every command that takes `--policy.path` goes through `load_checked_policy`, so a checkpoint of another
+action size, another task list (one-hot size) or another observation set is refused with one line before
+anything runs. LeRobot and torch are imported here, when a policy is actually loaded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from adademo_lerobot.core.errors import AdaDemoError
+
+POLICY_TYPES = ("act", "diffusion")
+
+
+@dataclass
+class LoadedPolicy:
+    policy: Any  # a LeRobot PreTrainedPolicy (torch.nn.Module)
+    preprocessor: Any
+    postprocessor: Any
+    config: Any  # its PreTrainedConfig
+    path: Path
+
+
+def check_checkpoint_folder(path: str | Path) -> Path:
+    path = Path(path)
+    if not (path / "config.json").exists() or not (path / "model.safetensors").exists():
+        raise AdaDemoError(
+            f"no LeRobot checkpoint at {path} (expected config.json and model.safetensors; pass the "
+            ".../checkpoints/last/pretrained_model folder)"
+        )
+    return path
+
+
+def read_policy_config(path: Path):
+    """The checkpoint's `PreTrainedConfig` (LeRobot's policy types are registered first)."""
+    import lerobot.policies  # noqa: F401  (registers the policy config types by name)
+    from lerobot.configs.policies import PreTrainedConfig
+
+    return PreTrainedConfig.from_pretrained(path)
+
+
+def load_policy(path: str | Path, device: str = "cpu") -> LoadedPolicy:
+    """Any LeRobot ACT/Diffusion checkpoint folder (`.../pretrained_model`), ours or stock `lerobot-train`'s."""
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    path = check_checkpoint_folder(path)
+    cfg = read_policy_config(path)
+    if cfg.type not in POLICY_TYPES:
+        raise AdaDemoError(f"{path} holds a {cfg.type!r} policy; adademo supports {', '.join(POLICY_TYPES)}")
+    cfg.device = device
+    cfg.pretrained_path = path
+    policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
+    policy.eval()
+    pre, post = make_pre_post_processors(
+        cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": device}}
+    )
+    return LoadedPolicy(policy, pre, post, cfg, path)
+
+
+def check_policy_matches_features(policy_cfg, features: dict[str, dict]) -> None:
+    """A checkpoint must read and write exactly these dataset features (names and shapes)."""
+    from lerobot.utils.feature_utils import dataset_to_policy_features
+
+    available = dataset_to_policy_features(features)
+    problems = []
+    for key, ft in {**policy_cfg.input_features, **policy_cfg.output_features}.items():
+        if key not in available:
+            problems.append(f"{key} (not in the dataset)")
+        elif tuple(available[key].shape) != tuple(ft.shape):
+            problems.append(
+                f"{key} shape {tuple(ft.shape)} in the checkpoint vs {tuple(available[key].shape)} in the dataset"
+            )
+    if problems:
+        raise AdaDemoError("the checkpoint's features do not match the dataset: " + "; ".join(problems))
+
+
+def check_policy(path: str | Path, features: dict[str, dict]):
+    """Refuse a checkpoint that is missing or does not match `features`, reading only its config (the workers
+    load the weights). Returns the config."""
+    path = check_checkpoint_folder(path)
+    cfg = read_policy_config(path)
+    if cfg.type not in POLICY_TYPES:
+        raise AdaDemoError(f"{path} holds a {cfg.type!r} policy; adademo supports {', '.join(POLICY_TYPES)}")
+    check_policy_matches_features(cfg, features)
+    return cfg
+
+
+def load_checked_policy(path: str | Path, features: dict[str, dict], device: str = "cpu") -> LoadedPolicy:
+    """Load a checkpoint and refuse it unless it matches `features` (the suite's dataset features)."""
+    path = check_checkpoint_folder(path)
+    check_policy_matches_features(read_policy_config(path), features)
+    return load_policy(path, device)

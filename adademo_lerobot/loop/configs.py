@@ -1,0 +1,211 @@
+"""Dataclass configs shared by the commands (parsed by draccus, LeRobot-style dotted flags)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
+from adademo_lerobot.collectors.takeover import TakeoverArgs, check_demo_start
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.executors import ExecutionArgs, ThreadArgs
+from adademo_lerobot.samplers import check_sampler_flags
+from adademo_lerobot.strategies import StrategyConfig, default_strategy
+from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
+
+LR_SCHEDULES = ("preset", "cosine")
+LEROBOT_CHOICE = "lerobot_choice"  # field metadata: the kind of LeRobot config the field holds
+
+
+def lerobot_choice(kind: str) -> Any:
+    """A field holding LeRobot's `kind` config ("policy", "robot" or "teleop"), chosen with `--FIELD.type=NAME`.
+
+    LeRobot's config registries import torch (seconds), so the commands parse such a field as a plain dict
+    first (`--help`, flag errors and `validate()` answer from that) and with LeRobot's type only afterwards
+    (`adademo_lerobot.loop.cli`)."""
+    return field(default=None, metadata={LEROBOT_CHOICE: kind})
+
+
+@dataclass
+class DatasetArgs:
+    repo_id: str = "local/adademo"
+    # Folder of the LeRobot dataset (required).
+    root: str | None = None
+
+
+def default_suite() -> SuiteConfig:
+    return MetaWorldSuiteConfig()
+
+
+def default_collector() -> CollectorConfig:
+    return ScriptedCollectorConfig()
+
+
+@dataclass
+class CollectConfig(ExecutionArgs):
+    suite: SuiteConfig = field(default_factory=default_suite)
+    collector: CollectorConfig = field(default_factory=default_collector)
+    dataset: DatasetArgs = field(default_factory=DatasetArgs)
+    # Demonstrations per task (a target: rerunning with --resume=true completes an interrupted collection).
+    episodes_per_task: int = 10
+    seed: int = 0
+    resume: bool = False
+    # Episodes buffered in memory between dataset commits (a kill loses at most these).
+    commit_every: int = 10
+
+
+@dataclass
+class TrainSamplingArgs:
+    # trajectory (AdaDemo C) | task (uniform over tasks) | tempered (n_k ** sampler_alpha) | frame (LeRobot's default)
+    sampler: str = "trajectory"
+    # Minimum share of every task under `trajectory` / `tempered`, in [0, 1/num_tasks].
+    min_task_weight: float = 0.0
+    # `tempered`: a task's share is proportional to (its trajectories) ** sampler_alpha (1: trajectory, 0: task).
+    sampler_alpha: float = 1.0
+    # Serve batches from tensors held in memory (datasets without camera frames); false: LeRobot's loading.
+    in_memory: bool = True
+    # `preset`: the policy's own learning-rate schedule (ACT: constant); `cosine`: a short warmup, then cosine
+    # decay to a hundredth of the policy's learning rate at the last step (a steadier last checkpoint).
+    lr_schedule: str = "preset"
+    # Datasets whose frames carry LeRobot's `intervention` flag (`lerobot-rollout --strategy.type=dagger`): how
+    # often the policy's own frames are drawn as imitation targets beside the person's (0: never; 1: as often).
+    autonomous_weight: float = 0.0
+
+    def validate(self) -> None:
+        check_sampler_flags(self.sampler, self.sampler_alpha)
+        if not 0.0 <= self.autonomous_weight < float("inf"):
+            raise AdaDemoError(
+                f"--autonomous_weight must be >= 0 (0: the policy's own frames are not imitated), got "
+                f"{self.autonomous_weight}"
+            )
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise AdaDemoError(
+                f"--lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}"
+            )
+
+
+@dataclass
+class TrainCommandFlags(TrainSamplingArgs, ThreadArgs):
+    """adademo-train's own flags (and --torch_threads). Every flag of `lerobot-train` is accepted too:
+    --dataset.repo_id/root, --policy.type or --policy.path, --output_dir, --steps, --batch_size, --resume,
+    optimizer, scheduler, wandb, ... (`lerobot-train --help` lists them). Defaults that differ from lerobot-train:
+    --steps=3000 --batch_size=64 --num_workers=0 --save_freq=1000 --env_eval_freq=0."""
+
+
+@dataclass
+class PolicyPathArgs:
+    # A LeRobot checkpoint folder: .../checkpoints/last/pretrained_model (ACT or Diffusion).
+    path: str | None = None
+
+
+@dataclass
+class EvalBatchArgs:
+    # Episodes run side by side (one SyncVectorEnv); the policy sees a batch of this size.
+    batch_size: int = 10
+
+
+@dataclass
+class EvalCommandConfig(ExecutionArgs):
+    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+    # The suite is rebuilt from the dataset (meta/adademo/suite.json; --suite.tasks picks a subset of its tasks);
+    # without a dataset, from --suite.*.
+    dataset: DatasetArgs = field(default_factory=DatasetArgs)
+    suite: SuiteConfig = field(default_factory=default_suite)
+    episodes_per_task: int = 10
+    seed: int = 0
+    output_dir: str | None = None
+    eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
+
+
+# --plan_only's evaluation episodes per task, unless --plan_episodes_per_task says otherwise.
+PLAN_EPISODES_PER_TASK = 20
+
+
+@dataclass
+class RoundArgs(ExecutionArgs):
+    """How an expansion round runs: adademo-expand's flags for its round and adademo-run's for each of its rounds
+    (declared once: `RunConfig` hands them on as they are)."""
+
+    # The expansion strategy and its settings: --strategy.type=adademo|budgeted|uniform|task_only, then its fields
+    # (--strategy.target_successes=5, --strategy.budget=20, ...; `docs/commands/expand.md` lists them). A list
+    # gives adademo-run one value per round (--strategy.budget=[32,48,64]; a single value serves every round).
+    strategy: StrategyConfig = field(default_factory=default_strategy)
+    seed: int = 0
+    collector: CollectorConfig = field(default_factory=default_collector)
+    # Where a demonstration starts: `initial` (the failed episode's initial state: the paper) or `takeover` (a
+    # correction: the expert takes over the failed rollout at the step `--takeover.*` picks).
+    demo_start: str = "initial"
+    takeover: TakeoverArgs = field(default_factory=TakeoverArgs)
+    # Demonstrations buffered in memory between dataset commits (a kill loses at most these).
+    commit_every: int = 10
+
+    def validate_round(self) -> None:
+        """The flags alone (answered before LeRobot is imported), whatever the number of rounds."""
+        self.strategy.validate()
+        check_demo_start(self.demo_start, self.takeover)
+        if self.demo_start == "takeover" and not self.strategy.collects_at_failed_states:
+            raise AdaDemoError(
+                f"--demo_start=takeover corrects failed policy rollouts; --strategy.type={self.strategy.type} "
+                "collects from fresh initial states without evaluating: use --strategy.type=adademo or budgeted, "
+                "or --demo_start=initial"
+            )
+        if self.commit_every < 1:
+            raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
+        self.validate_execution()
+
+
+@dataclass
+class ExpandConfig(RoundArgs):
+    dataset: DatasetArgs = field(default_factory=DatasetArgs)
+    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+    # Evaluate and print the predicted demos per task (N_k = E/SR_k - E, capped, with the strategy's E and CAP)
+    # without collecting (the strategies that predict so: adademo, and task_only without a budget).
+    plan_only: bool = False
+    # --plan_only: evaluation episodes per task that estimate SR_k.
+    plan_episodes_per_task: int = PLAN_EPISODES_PER_TASK
+    eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
+
+    def validate(self) -> None:
+        """adademo-expand's flags (answered before LeRobot is imported): one round, one value per setting."""
+        self.validate_round()
+        self.strategy.check_one_round()
+        if self.plan_only and not self.strategy.can_plan():
+            raise AdaDemoError(
+                f"--plan_only predicts N_k = E/SR_k - E: it needs --strategy.type="
+                f"{' or '.join(StrategyConfig.planning())} (task_only without --strategy.budget), not "
+                f"{self.strategy.type}" + (" with a budget" if self.strategy.type == "task_only" else "")
+            )
+        if self.plan_episodes_per_task < 1:
+            raise AdaDemoError(f"--plan_episodes_per_task must be >= 1, got {self.plan_episodes_per_task}")
+        if not self.plan_only and self.plan_episodes_per_task != PLAN_EPISODES_PER_TASK:
+            raise AdaDemoError(
+                "--plan_episodes_per_task is used with --plan_only (task_only's own is "
+                "--strategy.plan_episodes_per_task): add --plan_only, or drop it"
+            )
+
+
+@dataclass
+class PushConfig:
+    # The local adademo dataset (--dataset.root; --dataset.repo_id is not used for the push).
+    dataset: DatasetArgs = field(default_factory=DatasetArgs)
+    # Target repo on the hub: USER/NAME (or ORG/NAME).
+    repo_id: str | None = None
+    # Create the repo private (applies when the push creates it; an existing repo keeps its visibility).
+    private: bool = False
+    # Push to this branch (created from main if missing) instead of main.
+    branch: str | None = None
+    # License identifier written to the card.
+    license: str = "apache-2.0"
+
+
+@dataclass
+class ReportConfig:
+    run_dir: str | None = None
+    # More run folders to compare against (e.g. the uniform and ablation arms).
+    compare: list[str] = field(default_factory=list)
+    # A Uniform run on the same tasks: the break-even rollout cost c* against it, in plain words.
+    compare_to: str | None = None
+    output_dir: str | None = None
+    # A dataset instead of a run folder (one recorded on a robot: lerobot-record, lerobot-rollout's DAgger,
+    # adademo-record): the person's work in it per round and task, printed (and report.md in --output_dir).
+    dataset_root: str | None = None

@@ -1,0 +1,363 @@
+"""`adademo-report`: the paper's tables and figure for one run or several (`--compare`).
+
+- per-task success and demos per round (Tables I/II and the appendix tables),
+- average success vs average demos per task, one curve per run (Fig. 1),
+- demo allocation per task per round, and the evaluation cost from the ledger;
+- what each round cost per task (demonstrations, corrections, expert frames, evaluation episodes and steps) and
+  success against each of these, added over the rounds (a person on a robot pays in expert time and episodes,
+  not in demonstrations: `costs.py`), and, against a Uniform run (`--compare_to`), the break-even rollout
+  cost.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.tables import table
+from adademo_lerobot.dataset.interventions import intervention_flags
+from adademo_lerobot.dataset.ledger import read_ledger
+from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
+from adademo_lerobot.loop.configs import ReportConfig
+from adademo_lerobot.loop.report_costs import (
+    COSTS,
+    break_even_summary,
+    cost_lines,
+    cost_rows,
+    cost_table,
+    pct,
+    person_lines,
+)
+from adademo_lerobot.loop.report_plots import (
+    plot_allocation,
+    plot_eval_cost,
+    plot_per_task_success,
+    plot_success_vs_cost,
+    plot_success_vs_demos,
+)
+
+
+@dataclass
+class RunResults:
+    name: str
+    label: str
+    tasks: list[str]
+    success: pd.DataFrame  # index task (+ "average"), columns round -> success rate
+    demos: pd.DataFrame  # index task, columns round -> cumulative demos after that round
+    ledger: pd.DataFrame
+    started_from: str = ""  # where a run that began from the user's dataset/checkpoint started
+    run_dir: Path | None = None
+    dataset_root: Path | None = None
+    base_round: int = 0
+    costs: pd.DataFrame | None = None  # per ledger row (round, task): COSTS
+
+    def added_cost(self, per_task: bool = True) -> pd.DataFrame:
+        """Per round (rows, from 0), what the expansion rounds added up to then, per task on average (or in
+        all); episodes = expert episodes + rollouts, at the bounds of expert episodes where not exact."""
+        rounds = list(self.success.columns)
+        out = pd.DataFrame(0.0, index=rounds, columns=COSTS)
+        if self.costs is not None and len(self.costs):
+            per_round = self.costs.groupby("round")[COSTS].sum() / (len(self.tasks) if per_task else 1)
+            out = per_round.reindex(rounds, fill_value=0.0).cumsum()
+        out["episodes"] = out["expert episodes"] + out["rollouts"]
+        out["episodes high"] = out["expert episodes high"] + out["rollouts"]
+        return out
+
+
+def has_interventions(root: Path | None) -> bool:
+    """Whether a run's dataset has LeRobot's DAgger `intervention` flags (its person's work is reported)."""
+    return root is not None and has_dataset(root) and intervention_flags(root) is not None
+
+
+def describe_start(begun: dict) -> str:
+    if not begun:
+        return ""
+    dataset, policy = begun["origin"]["dataset"], begun["origin"]["policy"]
+    at = f" at {dataset['commit'][:8]}" if dataset.get("commit") else f" ({dataset['root']})"
+    text = f"Started from dataset {dataset['repo_id']}{at}, rounds 0..{begun['base_round']} of it"
+    if policy:
+        at = f" at {policy['commit'][:8]}" if policy.get("commit") else ""
+        text += f", and checkpoint {policy['path']}{at} (round 0 below)"
+    return text + "."
+
+
+def load_run(run_dir: Path) -> RunResults:
+    run_dir = Path(run_dir)
+    state_path = run_dir / "run_state.json"
+    if not state_path.exists():
+        raise AdaDemoError(f"{run_dir} is not an adademo-run folder (no run_state.json)")
+    state = json.loads(state_path.read_text())
+    settings = state["settings"]
+    tasks = settings["suite"]["tasks"].split(",")
+    # A run started from a user's dataset: its round r is the dataset's round base + r.
+    begun = state["done"].get("start", {}).get("result", {})
+    dataset_root = Path(begun.get("dataset_root", run_dir / "dataset"))
+    base = begun.get("base_round", 0)
+    success = {}
+    for summary in sorted((run_dir / "eval").glob("round-*/eval_summary.json")):
+        data = json.loads(summary.read_text())
+        success[data["round"]] = {row["task"]: row["success_rate"] for row in data["per_task"]}
+    if not success:
+        raise AdaDemoError(f"{run_dir} has no evaluation results yet (eval/round-*/eval_summary.json)")
+    eps = read_episode_metadata(dataset_root)
+    rounds = sorted(success)
+    demos = pd.DataFrame(
+        {
+            r: [int(((eps.task == t) & (eps["adademo/round"] <= base + r)).sum()) for t in tasks]
+            for r in rounds
+        },
+        index=tasks,
+    )
+    rows = [r for r in read_ledger(dataset_root) if r["round"] > base]
+    kept = eps.groupby(["task", "adademo/round"])["length"].sum()
+    spent = cost_rows(rows, settings, kept).assign(round=lambda d: d["round"] - base)
+    ledger = pd.DataFrame(rows)
+    if len(ledger):
+        ledger = ledger.assign(round=lambda d: d["round"] - base)
+    corrections = " + takeover corrections" if settings.get("demo_start") == "takeover" else ""
+    strategy = settings["strategy"]  # its config (a name in runs of release 0.2)
+    name = strategy["type"] if isinstance(strategy, dict) else strategy
+    label = f"{name}{corrections} + {settings['sampler']} sampler"
+    return RunResults(
+        run_dir.name,
+        label,
+        tasks,
+        pd.DataFrame(success).loc[tasks + ["average"], rounds],
+        demos,
+        ledger,
+        describe_start(begun),
+        run_dir,
+        dataset_root,
+        base,
+        spent,
+    )
+
+
+def markdown_tables(run: RunResults) -> str:
+    rounds = list(run.success.columns)
+    rows = [
+        [t, *(f"{pct(run.success.loc[t, r])} ({run.demos.loc[t, r]})" for r in rounds)] for t in run.tasks
+    ]
+    rows.append(
+        [
+            "**average**",
+            *(f"**{pct(run.success.loc['average', r])}** ({run.demos[r].mean():.1f})" for r in rounds),
+        ]
+    )
+    header = ["task", *(f"round {r}: SR % (demos)" for r in rounds)]
+    lines = [f"### {run.name} — {run.label}", ""]
+    if run.started_from:
+        lines += [run.started_from, ""]
+    lines += [table(header, rows, aligned=False)]
+    if len(run.ledger):
+        ledger = run.ledger.reindex(
+            columns=[*run.ledger.columns, *({"corrections", "demo_frames"} - set(run.ledger.columns))],
+            fill_value=0,
+        )
+        rows = [
+            [
+                r,
+                g.strategy.iloc[0],
+                g.demos_added.sum(),
+                int(g.corrections.sum()),
+                g.eval_episodes.sum(),
+                g.eval_env_steps.sum(),
+                g.collection_env_steps.sum(),
+                int(g.demo_frames.sum()),
+                g.expert_failures.sum(),
+                int(g.cap_hit.sum()),
+            ]
+            for r, g in ledger.groupby("round")
+        ]
+        lines += [
+            "",
+            "Expansion rounds (from the ledger):",
+            "",
+            table(
+                [
+                    "round",
+                    "strategy",
+                    "demos added",
+                    "corrections",
+                    "eval episodes",
+                    "eval env steps",
+                    "expert frames (collection env steps)",
+                    "demo frames",
+                    "expert failures",
+                    "tasks at CAP",
+                ],
+                rows,
+                aligned=False,
+            ),
+        ]
+        lines += cost_lines(run, ledger)
+        lines += allocation_lines(run.ledger)
+    return "\n".join(lines)
+
+
+def load_uniform(path: Path, run: RunResults) -> RunResults:
+    """The Uniform run to read c* against: a run on the same tasks that ran no policy rollouts."""
+    state = path / "run_state.json"
+    if not state.exists():
+        raise AdaDemoError(f"--compare_to: {path} is not an adademo-run folder (no run_state.json)")
+    tasks = json.loads(state.read_text())["settings"]["suite"]["tasks"].split(",")
+    if set(tasks) != set(run.tasks):  # checked before loading: its results are of other tasks
+        raise AdaDemoError(
+            f"--compare_to: {path} ran other tasks ({','.join(tasks)}) than {run.run_dir} "
+            f"({','.join(run.tasks)}): the break-even cost compares runs on the same tasks"
+        )
+    try:
+        uniform = load_run(path)
+    except AdaDemoError as err:
+        raise AdaDemoError(f"--compare_to: {err}") from None
+    rollouts = int(uniform.costs["rollouts"].sum())
+    if rollouts:
+        raise AdaDemoError(
+            f"--compare_to: {path} ran {rollouts} policy rollouts in its expansion rounds; compare with a "
+            "Uniform run (--strategy.type=uniform), which runs none"
+        )
+    return uniform
+
+
+def failure_lines(run: RunResults, out_dir: Path) -> list[str]:
+    """Will AdaDemo help here? Per task, how well the initial state predicts failure, and the failure map."""
+    from adademo_lerobot.loop.failure_map import plot_failure_map, run_predictability
+
+    results, by_round = run_predictability(run.run_dir, run.dataset_root, run.tasks, run.base_round)
+    if not by_round:
+        return []
+    plot_failure_map(by_round, run.tasks, out_dir / f"failure_map_{run.name}.png")
+    rows = [
+        [
+            r.task,
+            r.states,
+            r.failures,
+            "-" if r.auc is None else f"{r.auc:.2f} [{r.low:.2f}, {r.high:.2f}]",
+            r.reading,
+        ]
+        for r in results
+    ]
+    return [
+        "Will AdaDemo help on these tasks? How well a task's initial state predicts the policy's failure (AUC of a "
+        "cross-validated 5-nearest-neighbour vote over the initial states each policy was evaluated on; 0.5 is "
+        "chance; 95 % interval):",
+        "",
+        table(["task", "states", "failures", "AUC", "reading"], rows, aligned=False),
+        "",
+        f"![failure map](failure_map_{run.name}.png)",
+        "",
+    ]
+
+
+def allocation_lines(ledger: pd.DataFrame) -> list[str]:
+    """Per round and task, what was planned and what was done, and (budgeted) the success estimate before and
+    after the round's evaluations."""
+    rows = []
+    for _, r in ledger.iterrows():
+        extra = r.get("extra") if isinstance(r.get("extra"), dict) else {}
+        estimate = ""
+        if extra.get("prior") and extra.get("posterior"):
+            (a0, b0), (a1, b1) = extra["prior"], extra["posterior"]
+            estimate = f"{100 * a0 / (a0 + b0):.0f} -> {100 * a1 / (a1 + b1):.0f}"
+        planned = "" if pd.isna(r.get("planned_demos")) else int(r["planned_demos"])
+        rows.append([r["round"], r["task"], planned, r["demos_added"], r["eval_episodes"], estimate])
+    if not any(row[2] != "" or row[5] for row in rows):
+        return []
+    return [
+        "",
+        "Allocation per round (planned: the budget's first split or ablation A's N_k; success estimate: the "
+        "posterior mean before -> after the round's evaluations, %):",
+        "",
+        table(
+            ["round", "task", "planned demos", "demos", "eval episodes", "success estimate"],
+            rows,
+            aligned=False,
+        ),
+    ]
+
+
+def write_report(run_dirs: list[Path], out_dir: Path, uniform: RunResults | None = None) -> Path:
+    """The report of `run_dirs` (the first with its break-even rollout cost against `uniform`, if given)."""
+    runs = [load_run(Path(d)) for d in run_dirs]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plot_success_vs_demos(runs, out_dir / "success_vs_demos.png")
+    plot_eval_cost(runs, out_dir / "eval_cost.png")
+    plot_success_vs_cost(runs, out_dir / "success_vs_cost.png")
+    sections = [
+        "# AdaDemo report",
+        "",
+        "![success vs demos](success_vs_demos.png)",
+        "",
+        "![success vs demonstrations, expert frames and episodes](success_vs_cost.png)",
+        "",
+    ]
+    if len(runs) > 1:
+        rows = [
+            [
+                run.name,
+                run.label,
+                pct(run.success.loc["average", run.success.columns[-1]]),
+                f"{run.demos[run.success.columns[-1]].mean():.1f}",
+            ]
+            for run in runs
+        ]
+        sections += [
+            table(["run", "strategy", "final avg SR %", "avg demos per task"], rows, aligned=False),
+            "",
+        ]
+    for i, run in enumerate(runs):
+        plot_allocation(run, out_dir / f"allocation_{run.name}.png")
+        plot_per_task_success(run, out_dir / f"success_{run.name}.png")
+        sections += [
+            markdown_tables(run),
+            "",
+            *([*break_even_summary(run, uniform), ""] if i == 0 else []),
+            f"![allocation](allocation_{run.name}.png) ![per-task success](success_{run.name}.png)",
+            "",
+            *failure_lines(run, out_dir),
+            *(
+                [*person_lines(run.dataset_root), ""]
+                if i == 0 and has_interventions(run.dataset_root)
+                else []
+            ),
+        ]
+    sections += ["## Evaluation cost", "", "![evaluation cost](eval_cost.png)", ""]
+    path = out_dir / "report.md"
+    path.write_text("\n".join(sections))
+    return path
+
+
+def dataset_report(root: Path, output_dir: str | None) -> Path | None:
+    """`--dataset_root`: the person's work in a dataset (no run folder), printed, and written to `output_dir`."""
+    if not has_dataset(root):
+        raise AdaDemoError(f"--dataset_root: no LeRobot dataset at {root} (missing meta/info.json)")
+    lines = person_lines(root)
+    print("\n".join(lines))
+    if output_dir is None:
+        return None
+    path = Path(output_dir) / "report.md"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(["# AdaDemo report", "", *lines, ""]))
+    print(f"report: {path}")
+    return path
+
+
+def run_report(cfg: ReportConfig) -> Path | None:
+    if cfg.run_dir is None and cfg.dataset_root is not None:
+        return dataset_report(Path(cfg.dataset_root), cfg.output_dir)
+    if cfg.run_dir is None:
+        raise AdaDemoError("--run_dir is required (or --dataset_root, for a dataset recorded on a robot)")
+    out = Path(cfg.output_dir) if cfg.output_dir else Path(cfg.run_dir) / "report"
+    run = load_run(Path(cfg.run_dir))
+    # A bad --compare_to is refused before anything is written (getattr: ReportConfig's field, configs.py).
+    compare_to = getattr(cfg, "compare_to", None)
+    uniform = load_uniform(Path(compare_to), run) if compare_to else None
+    path = write_report([Path(cfg.run_dir), *map(Path, cfg.compare)], out, uniform)
+    print("\n".join([*cost_table(run), "", *break_even_summary(run, uniform)]))
+    print(f"report: {path}")
+    return path

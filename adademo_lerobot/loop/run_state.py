@@ -1,0 +1,165 @@
+"""What `adademo-run` keeps between invocations: the finished stages and the settings that define the run
+(`run_state.json`; a rerun must keep them), and where the run's data is (`RunData`)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.files import atomic_write_text
+
+if TYPE_CHECKING:
+    from adademo_lerobot.loop.run import RunConfig
+
+
+class RunState:
+    """Finished stages of a run, plus the settings that define it (a rerun must keep them). `on_stage` hears
+    `[done] NAME` for a stage an earlier invocation finished and `[run]  NAME` for one that runs (the command
+    prints them)."""
+
+    def __init__(self, run_dir: Path, settings: dict, on_stage: Callable[[str], None] | None = None):
+        self.path = run_dir / "run_state.json"
+        self._on_stage = on_stage or (lambda line: None)
+        if self.path.exists():
+            state = json.loads(self.path.read_text())
+            for key, default in SETTINGS_ADDED_LATER.items():  # a run started before the setting existed
+                state["settings"].setdefault(key, default)
+            legacy = state["settings"].get("strategy")
+            current = settings.get("strategy")
+            if isinstance(legacy, str) and isinstance(current, dict) and legacy == current.get("type"):
+                # Started before 0.3, when the strategy was a name and its values shared top-level flags that
+                # applied or not by strategy: only the type can be checked.
+                state["settings"]["strategy"] = current
+            diffs = sorted(
+                k
+                for k in set(settings) | set(state["settings"])
+                if settings.get(k) != state["settings"].get(k) and k in FIXED_SETTINGS
+            )
+            if diffs:
+                raise AdaDemoError(
+                    f"{run_dir} was started with other settings ({', '.join(diffs)}); "
+                    "rerun with the same recipe and flags, or use another --run_dir"
+                )
+            self.done = state["done"]
+            self.interrupted = state.get("interrupted", {})
+            settings = {**state["settings"], **settings}
+        else:
+            self.done = {}
+            self.interrupted = {}
+        self.settings = settings
+        self._save()
+
+    def _save(self) -> None:
+        state = {"settings": self.settings, "done": self.done}
+        if self.interrupted:
+            state["interrupted"] = self.interrupted
+        atomic_write_text(self.path, json.dumps(state, indent=2))
+
+    def stage(self, name: str, fn, *args):
+        """`fn(*args)`, unless an earlier invocation finished the stage: then its remembered (JSON) result.
+
+        A stage's `seconds` add up every invocation that worked on it, so a resumed stage reports its whole
+        cost; time lost to a kill that gave no chance to record it (SIGKILL, power) is not counted."""
+        if name in self.done:
+            self._on_stage(f"[done] {name}")
+            return self.done[name]["result"]
+        self._on_stage(f"[run]  {name}")
+        start = time.perf_counter()
+        earlier = self.interrupted.get(name, 0.0)
+        try:
+            result = fn(*args)
+        except BaseException:
+            self.interrupted[name] = round(earlier + time.perf_counter() - start, 1)
+            with contextlib.suppress(OSError):  # a full disk must not hide the failure being reported
+                self._save()
+            raise
+        self.interrupted.pop(name, None)
+        self.done[name] = {"result": result, "seconds": round(earlier + time.perf_counter() - start, 1)}
+        self._save()
+        return result
+
+
+# Settings whose change would make a resumed run a different experiment.
+FIXED_SETTINGS = (
+    "suite",
+    "strategy",
+    "initial_demos_per_task",
+    "seed",
+    "eval",
+    "sampler_alpha",
+    "sampler",
+    "policy_type",
+    "start",
+    "lr_schedule",
+    "demo_start",
+    "takeover",
+)
+# Settings that runs started by an earlier release do not record, with the value those runs used.
+SETTINGS_ADDED_LATER = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}
+
+
+def run_settings(cfg: RunConfig, suite: dict) -> dict:
+    """What defines the run, kept in run_state.json (FIXED_SETTINGS among them must not change on resume)."""
+    return {
+        "suite": suite,
+        "strategy": cfg.strategy.to_dict(),
+        "rounds": cfg.rounds,
+        "initial_demos_per_task": cfg.initial_demos_per_task,
+        "seed": cfg.seed,
+        "eval": {"episodes_per_task": cfg.eval.episodes_per_task, "seed": cfg.eval.seed},
+        "sampler": cfg.train.sampler,
+        "policy_type": cfg.train.policy.type if cfg.train.policy else None,
+        "train_mode": cfg.train.mode,
+        "min_task_weight": cfg.train.min_task_weight,
+        "sampler_alpha": cfg.train.sampler_alpha,
+        "lr_schedule": cfg.train.lr_schedule,
+        "demo_start": cfg.demo_start,
+        "takeover": cfg.takeover.to_dict() if cfg.demo_start == "takeover" else None,
+        "start": None
+        if cfg.dataset.repo_id is None
+        else {
+            "dataset": {k: getattr(cfg.dataset, k) for k in ("repo_id", "root", "revision", "copy")},
+            "policy": {k: getattr(cfg.policy, k) for k in ("path", "revision")},
+        },
+    }
+
+
+def saved_stage(run_dir: Path, name: str) -> dict | None:
+    """A finished stage of an earlier invocation of this run (read only)."""
+    path = run_dir / "run_state.json"
+    if not path.exists():
+        return None
+    state = json.loads(path.read_text())
+    return {**state["done"][name], "settings": state["settings"]} if name in state["done"] else None
+
+
+@dataclass
+class RunData:
+    """The run's dataset, the last round of its history before the run, and the user's checkpoint (if any)."""
+
+    root: Path
+    repo_id: str
+    base_round: int
+    checkpoint: Path | None
+
+    @classmethod
+    def of_stage(cls, result: dict) -> RunData:
+        checkpoint = result["checkpoint"]
+        return cls(
+            Path(result["dataset_root"]),
+            result["repo_id"],
+            result["base_round"],
+            checkpoint and Path(checkpoint),
+        )
+
+    @classmethod
+    def collected(cls, run_dir: Path) -> RunData:
+        """Demonstrations the expert collects into the run folder (relative to it, so a copied run folder
+        keeps working on its own copy)."""
+        return cls(run_dir / "dataset", f"local/{run_dir.name}", 0, None)
