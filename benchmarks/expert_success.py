@@ -1,12 +1,16 @@
-"""Success of a suite's scripted experts over seeded random initial states (prints a markdown table).
+"""Success of a suite's experts over seeded random initial states (prints a markdown table).
 
     ~/.venvs/adademo-lerobot/bin/python benchmarks/expert_success.py --suite fetch     # 100 states per task
     ~/.venvs/adademo-lerobot/bin/python benchmarks/expert_success.py --suite adroit --states 20 --tasks door
+    ~/.venvs/adademo-lerobot/bin/python benchmarks/expert_success.py --suite adroit --tasks pen,hammer \
+        --collector planner --planner samples=32,horizon=12       # the planning expert, with its fields
 
 Initial states are `suite.sample_initial_state(task, seed)` for seeds 0..states-1; each is given to the
 collector once (`max_attempts=1`, so no retries with action noise) within the suite's step limit (by default the
 envs' own: Fetch 50, Adroit 200, MetaWorld 300). Success is the suite's own rule (`info["is_success"]`; Adroit:
-DAPG's, goal achieved on more than 25 steps, Pen 20). Adroit Hammer has no scripted expert and is not measured.
+DAPG's, goal achieved on more than 25 steps, Pen 20). Adroit Hammer has no scripted expert; the planner
+(`--collector planner`) acts on every task of a suite with full-state restore. Wall seconds are the whole
+command's on one process (torch and OpenMP at 1 thread: set OMP_NUM_THREADS=1 beside other jobs).
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import time
 
 import numpy as np
 
-from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
+from adademo_lerobot.collectors import PlannerCollectorConfig, ScriptedCollectorConfig, make_collector
 from adademo_lerobot.suites import SuiteConfig, make_suite
 
 DEFAULTS = {  # suite -> (tasks, max_episode_steps, title)
@@ -33,6 +37,8 @@ def main() -> None:
     parser.add_argument("--states", type=int, default=100, help="initial states per task (seeds 0..states-1)")
     parser.add_argument("--max_attempts", type=int, default=1)
     parser.add_argument("--max_episode_steps", type=int)
+    parser.add_argument("--collector", choices=["scripted", "planner"], default="scripted")
+    parser.add_argument("--planner", default="", help="the planner's fields: samples=32,horizon=12,...")
     args = parser.parse_args()
     default_tasks, default_steps, title = DEFAULTS[args.suite]
     args.tasks = args.tasks or default_tasks
@@ -44,7 +50,13 @@ def main() -> None:
         tasks=args.tasks, max_episode_steps=args.max_episode_steps
     )
     suite = make_suite(config)
-    collector = make_collector(ScriptedCollectorConfig(max_attempts=args.max_attempts), suite)
+    if args.collector == "planner":
+        fields = dict(kv.split("=") for kv in args.planner.split(",") if kv)
+        typed = {k: type(getattr(PlannerCollectorConfig(), k))(v) for k, v in fields.items()}
+        config = PlannerCollectorConfig(max_attempts=args.max_attempts, **typed)
+    else:
+        config = ScriptedCollectorConfig(max_attempts=args.max_attempts)
+    collector = make_collector(config, suite)
     rows = []
     for task in suite.tasks:
         started = time.perf_counter()
@@ -52,7 +64,7 @@ def main() -> None:
         for seed in range(args.states):
             result = collector.collect(task, suite.sample_initial_state(task, seed), seed)
             env_steps += result.env_steps
-            if result.succeeded:
+            if result.demonstration is not None:
                 successes += 1
                 demo_frames.append(len(result.demonstration.frames))
             else:
@@ -73,8 +85,9 @@ def main() -> None:
         )
 
     header = ("task", "successes", "success rate", "mean demo frames", "env steps", "wall s", "failed seeds")
+    expert = "scripted experts" if args.collector == "scripted" else f"planner ({config})"
     print(
-        f"{title} scripted experts, seeds 0..{args.states - 1}, max_attempts={args.max_attempts}, "
+        f"{title} {expert}, seeds 0..{args.states - 1}, max_attempts={args.max_attempts}, "
         f"max_episode_steps={args.max_episode_steps}\n"
     )
     print("| " + " | ".join(header) + " |")

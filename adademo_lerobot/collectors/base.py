@@ -107,9 +107,10 @@ class SimulatedExpertCollector:
     @abc.abstractmethod
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]: ...
 
-    def expert_first_action(self, task: str) -> Callable[[dict], np.ndarray]:
-        """The action a fresh expert would take first at an observation (what it does when it takes over there)."""
-        return lambda observation: np.asarray(self.expert_for(task)(observation), np.float64)
+    def expert_first_action(self, task: str) -> Callable[[dict, np.ndarray], np.ndarray]:
+        """The action a fresh expert would take first at an observation and whole state (what it does when it
+        takes over there); an expert that acts from observations reads the observation only."""
+        return lambda observation, state: np.asarray(self.expert_for(task)(observation), np.float64)
 
     def _env(self, task: str) -> EpisodeRecorder:
         return cached_for_task(

@@ -137,13 +137,15 @@ def takeover_step(
 
 
 def choose_takeover(
-    trace: RolloutTrace, args: TakeoverArgs, expert_first_action: Callable[[dict], np.ndarray]
+    trace: RolloutTrace, args: TakeoverArgs, expert_first_action: Callable[[dict, np.ndarray], np.ndarray]
 ) -> TakeoverPoint:
-    """The takeover point of a failed rollout; `expert_first_action(obs)`: the expert's action if it took over
-    at that observation (clipped to the suites' [-1, 1] action box, like the policy's executed actions)."""
+    """The takeover point of a failed rollout; `expert_first_action(obs, state)`: the expert's action if it took
+    over at that observation and whole state (clipped to the suites' [-1, 1] action box, like the policy's executed
+    actions)."""
 
     def expert_action(t: int) -> np.ndarray:
-        return np.clip(np.asarray(expert_first_action(trace.observations[t]), np.float64), -1.0, 1.0)
+        action = expert_first_action(trace.observations[t], trace.states[t])
+        return np.clip(np.asarray(action, np.float64), -1.0, 1.0)
 
     step, rule = takeover_step(trace, args, expert_action)
     return TakeoverPoint(step, np.asarray(trace.states[step], np.float64), rule)

@@ -307,6 +307,30 @@ class SuiteTaskEnv(gym.Env):
             obs["pixels"] = self._camera_image()
         return obs
 
+    # -- within-episode snapshots (a planner's rollouts) -------------------------------------------------------
+    def snapshot(self) -> tuple:
+        """The current step, taken cheaply (physics, the env's Python-side state, the counters): `rewind` returns
+        this env to it. Unlike `get_state` it leaves the layout out, so it holds only until the next reset."""
+        model, data = self._raw.model, self._raw.data
+        physics = np.empty(mujoco.mj_stateSize(model, PHYSICS_STATE))
+        mujoco.mj_getState(model, data, physics, PHYSICS_STATE)
+        own = np.array(self._own_state(), np.float64, copy=True)
+        return physics, own, self._steps, self._limit_from, self._last_obs, self._final_obs
+
+    def rewind(self, snapshot: tuple) -> None:
+        """Back to a `snapshot` of this episode: the episode then continues exactly as it did from there."""
+        physics, own, steps, limit_from, last_obs, final_obs = snapshot
+        model, data = self._raw.model, self._raw.data
+        mujoco.mj_setState(model, data, physics, PHYSICS_STATE)
+        mujoco.mj_forward(model, data)
+        self._set_own_state(own)
+        self._steps, self._limit_from, self._last_obs, self._final_obs = (
+            steps,
+            limit_from,
+            last_obs,
+            final_obs,
+        )
+
     @property
     def _holding(self) -> bool:
         return self.hold_after_episode and self._final_obs is not None
