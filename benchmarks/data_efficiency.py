@@ -179,8 +179,7 @@ def branch_from_base(base: Path, arm_dir: Path, flags: list[str]) -> None:
     if arm_dir.exists():
         return
     from adademo_lerobot.loop.cli import parse_config
-    from adademo_lerobot.loop.run import RunConfig
-    from adademo_lerobot.loop.run_state import run_settings
+    from adademo_lerobot.loop.run import RunConfig, run_settings
 
     tmp = arm_dir.with_name(arm_dir.name + ".copying")
     shutil.rmtree(tmp, ignore_errors=True)

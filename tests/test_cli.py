@@ -8,8 +8,7 @@ from lerobot.configs.policies import PreTrainedConfig
 
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.loop.cli import parse_config, parse_light
-from adademo_lerobot.loop.configs import ExpandConfig, TrainCommandFlags
-from adademo_lerobot.loop.record import RecordConfig
+from adademo_lerobot.loop.configs import ExpandConfig, RecordConfig, TrainCommandFlags
 from adademo_lerobot.loop.run import RunConfig
 from adademo_lerobot.loop.train import AdaDemoTrainConfig
 

@@ -1,7 +1,7 @@
 """adademo-record: one AdaDemo round on a robot, with a person in the loop."""
 
 from adademo_lerobot.loop.cli import run_command
-from adademo_lerobot.loop.record import RecordConfig
+from adademo_lerobot.loop.configs import RecordConfig
 
 
 def main() -> None:

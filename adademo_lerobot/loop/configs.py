@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
-from adademo_lerobot.collectors.takeover import TakeoverArgs, check_demo_start
+from adademo_lerobot.collectors.takeover import DEMO_STARTS, TakeoverArgs, check_demo_start
 from adademo_lerobot.core.errors import AdaDemoError
-from adademo_lerobot.executors import ExecutionArgs, ThreadArgs
+from adademo_lerobot.dataset.metadata import has_dataset
+from adademo_lerobot.executors import ComputeArgs, ExecutionArgs, ThreadArgs
 from adademo_lerobot.samplers import check_sampler_flags
 from adademo_lerobot.strategies import StrategyConfig, default_strategy
 from adademo_lerobot.suites import MetaWorldSuiteConfig, SuiteConfig
@@ -117,6 +118,43 @@ class EvalCommandConfig(ExecutionArgs):
     eval: EvalBatchArgs = field(default_factory=EvalBatchArgs)
 
 
+STEPS_SCHEDULES = ("constant", "proportional")
+
+
+@dataclass
+class RunTrainArgs(TrainSamplingArgs):
+    # The policy to train: --train.policy.type=act|diffusion and the fields of LeRobot's ACTConfig or
+    # DiffusionConfig (--train.policy.dim_model=64, ...). Optional with --policy.path (the checkpoint's own).
+    policy: dict | None = lerobot_choice("policy")
+    batch_size: int = 32
+    # Steps of the round-0 training.
+    steps: int = 2000
+    # Later rounds: `scratch` retrains from scratch, `finetune` continues from the previous round's checkpoint.
+    mode: str = "scratch"
+    # scratch: `constant` steps, or `proportional` to the number of demonstrations (same passes over them).
+    steps_schedule: str = "proportional"
+    max_steps: int = 20000
+    # finetune: steps per round.
+    finetune_steps: int = 1000
+    save_freq: int = 1000
+    seed: int = 1000
+
+    def validate(self) -> None:
+        super().validate()
+        if self.mode not in ("scratch", "finetune"):
+            raise AdaDemoError(f"--train.mode must be scratch or finetune, got {self.mode!r}")
+        if self.steps_schedule not in STEPS_SCHEDULES:
+            raise AdaDemoError(f"--train.steps_schedule must be one of {', '.join(STEPS_SCHEDULES)}")
+
+
+@dataclass
+class RunEvalArgs:
+    # The fixed evaluation set: this many initial states per task, the same every round and for every strategy.
+    episodes_per_task: int = 20
+    seed: int = 100
+    batch_size: int = 10
+
+
 # --plan_only's evaluation episodes per task, unless --plan_episodes_per_task says otherwise.
 PLAN_EPISODES_PER_TASK = 20
 
@@ -209,3 +247,85 @@ class ReportConfig:
     # A dataset instead of a run folder (one recorded on a robot: lerobot-record, lerobot-rollout's DAgger,
     # adademo-record): the person's work in it per round and task, printed (and report.md in --output_dir).
     dataset_root: str | None = None
+
+
+JUDGES = ("auto", "keys", "teleop")
+
+
+@dataclass
+class RecordDatasetArgs:
+    repo_id: str = "local/robot"
+    # The dataset the policy was trained on (recorded with this robot); new episodes are appended to it.
+    root: str | None = None
+    # The longest a policy episode or a demonstration may run, in seconds (the person usually ends it sooner).
+    episode_time_s: float = 60.0
+
+
+@dataclass
+class RecordConfig(ComputeArgs):
+    # The robot: --robot.type=NAME and its fields, any robot lerobot-record knows or an installed plugin
+    # (e.g. --robot.type=so101_follower --robot.port=/dev/ttyACM0; `lerobot-record --help` lists them).
+    robot: dict | None = lerobot_choice("robot")
+    # The person's teleoperator: --teleop.type=NAME and its fields (e.g. so101_leader).
+    teleop: dict | None = lerobot_choice("teleop")
+    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+    dataset: RecordDatasetArgs = field(default_factory=RecordDatasetArgs)
+    # Tasks of this round, comma-separated (task strings of the dataset); default: every task of the dataset.
+    tasks: str | None = None
+    # The strategy and its settings, adademo-expand's (same flags, same defaults): --strategy.type=adademo (until E
+    # successes or CAP demos per task: --strategy.target_successes, --strategy.max_demos_per_task, or
+    # --strategy.budget) or budgeted (--strategy.budget=B demos in the round); `docs/commands/record.md`.
+    strategy: StrategyConfig = field(default_factory=default_strategy)
+    # Demonstrations tried per failure before moving on (each redo counts).
+    max_attempts: int = 3
+    # Who marks success and ends episodes: `keys` (the person), `teleop` (the teleoperator's events, e.g.
+    # adademo_scripted), `auto` (teleop if it reports events, else keys).
+    judge: str = "auto"
+    # `initial`: a failure is answered by a demonstration from the failed episode's start (the paper);
+    # `takeover`: the person may take over while the policy goes wrong (t, or the teleoperator's intervention
+    # event) and the correction is recorded from there. Hold the leader arm where the follower is before taking
+    # over (the follower moves to the leader's pose at once).
+    demo_start: str = "initial"
+    seed: int = 0
+
+    # Flags of earlier releases and where they went (`adademo_lerobot.loop.cli` answers them in one line).
+    MOVED_FLAGS: ClassVar[dict[str, str]] = {
+        "target_successes": "strategy.target_successes",
+        "max_demos_per_task": "strategy.max_demos_per_task",
+        "max_eval_episodes_per_task": "strategy.max_eval_episodes_per_task",
+    }
+
+    def validate(self) -> None:
+        """Checks of the flags alone (answered before LeRobot is imported: `adademo_lerobot.loop.cli`)."""
+        if self.robot is None:
+            raise AdaDemoError("--robot.type is required (the robot to record with, e.g. so101_follower)")
+        if self.teleop is None:
+            raise AdaDemoError("--teleop.type is required (the person's teleoperator, e.g. so101_leader)")
+        if self.policy.path is None:
+            raise AdaDemoError("--policy.path is required (the policy whose failures the round answers)")
+        self.validate_threads()
+        self.strategy.validate()
+        self.strategy.check_one_round("adademo-record")
+        if not self.strategy.answers_failures_only():
+            paying = " with --strategy.rollout_cost" if self.strategy.type == "budgeted" else ""
+            raise AdaDemoError(
+                f"--strategy.type={self.strategy.type}{paying} takes demonstrations from fresh initial states, "
+                "which needs a simulated round (adademo-expand, adademo-run); adademo-record answers the policy's "
+                f"failed episodes: use --strategy.type={' or '.join(StrategyConfig.answering_failures_only())}"
+                + (" (without --strategy.rollout_cost)" if paying else "")
+            )
+        if self.dataset.root is None or not has_dataset(self.dataset.root):
+            raise AdaDemoError(
+                f"no LeRobot dataset at --dataset.root={self.dataset.root} (the dataset the policy was trained on, "
+                "recorded with this robot, e.g. by lerobot-record)"
+            )
+        if self.max_attempts < 1:
+            raise AdaDemoError(f"--max_attempts must be >= 1, got {self.max_attempts}")
+        if self.dataset.episode_time_s <= 0:
+            raise AdaDemoError(f"--dataset.episode_time_s must be > 0, got {self.dataset.episode_time_s}")
+        if self.judge not in JUDGES:
+            raise AdaDemoError(f"--judge must be one of {', '.join(JUDGES)}, got {self.judge!r}")
+        if self.demo_start not in DEMO_STARTS:
+            raise AdaDemoError(
+                f"unknown --demo_start={self.demo_start!r}; choose one of {', '.join(DEMO_STARTS)}"
+            )

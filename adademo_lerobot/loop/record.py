@@ -37,11 +37,8 @@ resumes the round, and no failure gets two demonstrations. The ledger records th
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar
 
-from adademo_lerobot.collectors.takeover import DEMO_STARTS
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import exclusive_use
@@ -50,96 +47,14 @@ from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.interventions import check_writable_features
 from adademo_lerobot.dataset.ledger import append_ledger
-from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
-from adademo_lerobot.executors import ComputeArgs
-from adademo_lerobot.loop.configs import PolicyPathArgs, lerobot_choice
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.loop.configs import RecordConfig
 from adademo_lerobot.loop.expand import check_ledger_matches_dataset, next_round
 from adademo_lerobot.loop.person import StopRecording, make_person
 from adademo_lerobot.loop.robot_round import SOURCE, PersonRound, Session
-from adademo_lerobot.strategies import StrategyConfig, default_strategy, planned_demos
+from adademo_lerobot.strategies import planned_demos
 from adademo_lerobot.strategies.budgeted import BudgetedStrategy
 from adademo_lerobot.strategies.estimates import failure_mean, prior_from_earlier_rounds
-
-JUDGES = ("auto", "keys", "teleop")
-
-
-@dataclass
-class RecordDatasetArgs:
-    repo_id: str = "local/robot"
-    # The dataset the policy was trained on (recorded with this robot); new episodes are appended to it.
-    root: str | None = None
-    # The longest a policy episode or a demonstration may run, in seconds (the person usually ends it sooner).
-    episode_time_s: float = 60.0
-
-
-@dataclass
-class RecordConfig(ComputeArgs):
-    # The robot: --robot.type=NAME and its fields, any robot lerobot-record knows or an installed plugin
-    # (e.g. --robot.type=so101_follower --robot.port=/dev/ttyACM0; `lerobot-record --help` lists them).
-    robot: dict | None = lerobot_choice("robot")
-    # The person's teleoperator: --teleop.type=NAME and its fields (e.g. so101_leader).
-    teleop: dict | None = lerobot_choice("teleop")
-    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
-    dataset: RecordDatasetArgs = field(default_factory=RecordDatasetArgs)
-    # Tasks of this round, comma-separated (task strings of the dataset); default: every task of the dataset.
-    tasks: str | None = None
-    # The strategy and its settings, adademo-expand's (same flags, same defaults): --strategy.type=adademo (until E
-    # successes or CAP demos per task: --strategy.target_successes, --strategy.max_demos_per_task, or
-    # --strategy.budget) or budgeted (--strategy.budget=B demos in the round); `docs/commands/record.md`.
-    strategy: StrategyConfig = field(default_factory=default_strategy)
-    # Demonstrations tried per failure before moving on (each redo counts).
-    max_attempts: int = 3
-    # Who marks success and ends episodes: `keys` (the person), `teleop` (the teleoperator's events, e.g.
-    # adademo_scripted), `auto` (teleop if it reports events, else keys).
-    judge: str = "auto"
-    # `initial`: a failure is answered by a demonstration from the failed episode's start (the paper);
-    # `takeover`: the person may take over while the policy goes wrong (t, or the teleoperator's intervention
-    # event) and the correction is recorded from there. Hold the leader arm where the follower is before taking
-    # over (the follower moves to the leader's pose at once).
-    demo_start: str = "initial"
-    seed: int = 0
-
-    # Flags of earlier releases and where they went (`adademo_lerobot.loop.cli` answers them in one line).
-    MOVED_FLAGS: ClassVar[dict[str, str]] = {
-        "target_successes": "strategy.target_successes",
-        "max_demos_per_task": "strategy.max_demos_per_task",
-        "max_eval_episodes_per_task": "strategy.max_eval_episodes_per_task",
-    }
-
-    def validate(self) -> None:
-        """Checks of the flags alone (answered before LeRobot is imported: `adademo_lerobot.loop.cli`)."""
-        if self.robot is None:
-            raise AdaDemoError("--robot.type is required (the robot to record with, e.g. so101_follower)")
-        if self.teleop is None:
-            raise AdaDemoError("--teleop.type is required (the person's teleoperator, e.g. so101_leader)")
-        if self.policy.path is None:
-            raise AdaDemoError("--policy.path is required (the policy whose failures the round answers)")
-        self.validate_threads()
-        self.strategy.validate()
-        self.strategy.check_one_round("adademo-record")
-        if not self.strategy.answers_failures_only():
-            paying = " with --strategy.rollout_cost" if self.strategy.type == "budgeted" else ""
-            raise AdaDemoError(
-                f"--strategy.type={self.strategy.type}{paying} takes demonstrations from fresh initial states, "
-                "which needs a simulated round (adademo-expand, adademo-run); adademo-record answers the policy's "
-                f"failed episodes: use --strategy.type={' or '.join(StrategyConfig.answering_failures_only())}"
-                + (" (without --strategy.rollout_cost)" if paying else "")
-            )
-        if self.dataset.root is None or not has_dataset(self.dataset.root):
-            raise AdaDemoError(
-                f"no LeRobot dataset at --dataset.root={self.dataset.root} (the dataset the policy was trained on, "
-                "recorded with this robot, e.g. by lerobot-record)"
-            )
-        if self.max_attempts < 1:
-            raise AdaDemoError(f"--max_attempts must be >= 1, got {self.max_attempts}")
-        if self.dataset.episode_time_s <= 0:
-            raise AdaDemoError(f"--dataset.episode_time_s must be > 0, got {self.dataset.episode_time_s}")
-        if self.judge not in JUDGES:
-            raise AdaDemoError(f"--judge must be one of {', '.join(JUDGES)}, got {self.judge!r}")
-        if self.demo_start not in DEMO_STARTS:
-            raise AdaDemoError(
-                f"unknown --demo_start={self.demo_start!r}; choose one of {', '.join(DEMO_STARTS)}"
-            )
 
 
 def robot_features(robot, use_video: bool) -> dict[str, dict]:

@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -24,7 +23,6 @@ from adademo_lerobot.dataset.ledger import read_ledger
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
 from adademo_lerobot.loop.configs import ReportConfig
 from adademo_lerobot.loop.report_costs import (
-    COSTS,
     break_even_summary,
     cost_lines,
     cost_rows,
@@ -39,33 +37,7 @@ from adademo_lerobot.loop.report_plots import (
     plot_success_vs_cost,
     plot_success_vs_demos,
 )
-
-
-@dataclass
-class RunResults:
-    name: str
-    label: str
-    tasks: list[str]
-    success: pd.DataFrame  # index task (+ "average"), columns round -> success rate
-    demos: pd.DataFrame  # index task, columns round -> cumulative demos after that round
-    ledger: pd.DataFrame
-    started_from: str = ""  # where a run that began from the user's dataset/checkpoint started
-    run_dir: Path | None = None
-    dataset_root: Path | None = None
-    base_round: int = 0
-    costs: pd.DataFrame | None = None  # per ledger row (round, task): COSTS
-
-    def added_cost(self, per_task: bool = True) -> pd.DataFrame:
-        """Per round (rows, from 0), what the expansion rounds added up to then, per task on average (or in
-        all); episodes = expert episodes + rollouts, at the bounds of expert episodes where not exact."""
-        rounds = list(self.success.columns)
-        out = pd.DataFrame(0.0, index=rounds, columns=COSTS)
-        if self.costs is not None and len(self.costs):
-            per_round = self.costs.groupby("round")[COSTS].sum() / (len(self.tasks) if per_task else 1)
-            out = per_round.reindex(rounds, fill_value=0.0).cumsum()
-        out["episodes"] = out["expert episodes"] + out["rollouts"]
-        out["episodes high"] = out["expert episodes high"] + out["rollouts"]
-        return out
+from adademo_lerobot.loop.run_results import RunResults
 
 
 def has_interventions(root: Path | None) -> bool:

@@ -5,7 +5,6 @@ rollout cost against a Uniform run."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -17,25 +16,12 @@ from adademo_lerobot.dataset.interventions import intervention_flags, segments
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SOURCE, CORRECTION_SOURCE, POLICY_SOURCE
 from adademo_lerobot.dataset.ledger import read_ledger
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-
-if TYPE_CHECKING:
-    from adademo_lerobot.loop.report import RunResults
+from adademo_lerobot.loop.run_results import COSTS, RunResults
 
 
 def pct(x: float) -> str:
     """A rate as whole percent ('-' where unknown)."""
     return "-" if pd.isna(x) else f"{100 * x:.0f}"
-
-
-# What a ledger row (a task in a round) cost: costs.py's model (`high`: the upper bound, where not exact).
-COSTS = [
-    "demonstrations",
-    "expert frames",
-    "expert episodes",
-    "expert episodes high",
-    "rollouts",
-    "evaluation steps",
-]
 
 
 def cost_rows(rows: list[dict], settings: dict, kept: pd.Series) -> pd.DataFrame:

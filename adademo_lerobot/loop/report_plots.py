@@ -4,13 +4,11 @@ went, success per task, and what the evaluations cost."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import pandas as pd
 from matplotlib.figure import Figure  # no pyplot: drawing into a file needs no GUI backend, and sets none
 
-if TYPE_CHECKING:
-    from adademo_lerobot.loop.report import RunResults
+from adademo_lerobot.loop.run_results import RunResults
 
 
 def plot_success_vs_demos(runs: list[RunResults], path: Path) -> None:

@@ -20,7 +20,7 @@ from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_dem
 from adademo_lerobot.strategies.round_context import Outcome
 
 if TYPE_CHECKING:
-    from adademo_lerobot.loop.record import RecordConfig
+    from adademo_lerobot.loop.configs import RecordConfig
 
 SOURCE = "human"
 

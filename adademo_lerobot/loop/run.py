@@ -41,13 +41,14 @@ from adademo_lerobot.loop.configs import (
     ExpandConfig,
     PolicyPathArgs,
     RoundArgs,
+    RunEvalArgs,
+    RunTrainArgs,
     TrainSamplingArgs,
     default_suite,
-    lerobot_choice,
 )
 from adademo_lerobot.loop.evaluate import evaluate_fixed_set
 from adademo_lerobot.loop.expand import next_round, run_expand
-from adademo_lerobot.loop.run_state import RunData, RunState, run_settings, saved_stage
+from adademo_lerobot.loop.run_state import RunData, RunState, saved_stage
 from adademo_lerobot.loop.start import (
     Start,
     StartDatasetArgs,
@@ -58,42 +59,6 @@ from adademo_lerobot.loop.start import (
 )
 from adademo_lerobot.samplers import make_sampling_scheme
 from adademo_lerobot.suites import SuiteConfig, TaskSuite, make_suite, suite_config_from_dict
-
-STEPS_SCHEDULES = ("constant", "proportional")
-
-
-@dataclass
-class RunTrainArgs(TrainSamplingArgs):
-    # The policy to train: --train.policy.type=act|diffusion and the fields of LeRobot's ACTConfig or
-    # DiffusionConfig (--train.policy.dim_model=64, ...). Optional with --policy.path (the checkpoint's own).
-    policy: dict | None = lerobot_choice("policy")
-    batch_size: int = 32
-    # Steps of the round-0 training.
-    steps: int = 2000
-    # Later rounds: `scratch` retrains from scratch, `finetune` continues from the previous round's checkpoint.
-    mode: str = "scratch"
-    # scratch: `constant` steps, or `proportional` to the number of demonstrations (same passes over them).
-    steps_schedule: str = "proportional"
-    max_steps: int = 20000
-    # finetune: steps per round.
-    finetune_steps: int = 1000
-    save_freq: int = 1000
-    seed: int = 1000
-
-    def validate(self) -> None:
-        super().validate()
-        if self.mode not in ("scratch", "finetune"):
-            raise AdaDemoError(f"--train.mode must be scratch or finetune, got {self.mode!r}")
-        if self.steps_schedule not in STEPS_SCHEDULES:
-            raise AdaDemoError(f"--train.steps_schedule must be one of {', '.join(STEPS_SCHEDULES)}")
-
-
-@dataclass
-class RunEvalArgs:
-    # The fixed evaluation set: this many initial states per task, the same every round and for every strategy.
-    episodes_per_task: int = 20
-    seed: int = 100
-    batch_size: int = 10
 
 
 @dataclass
@@ -152,6 +117,32 @@ class RunConfig(RoundArgs):
             policy=PolicyPathArgs(path=str(checkpoint)),
             eval=EvalBatchArgs(batch_size=self.eval.batch_size),
         )
+
+
+def run_settings(cfg: RunConfig, suite: dict) -> dict:
+    """What defines the run, kept in run_state.json (FIXED_SETTINGS among them must not change on resume)."""
+    return {
+        "suite": suite,
+        "strategy": cfg.strategy.to_dict(),
+        "rounds": cfg.rounds,
+        "initial_demos_per_task": cfg.initial_demos_per_task,
+        "seed": cfg.seed,
+        "eval": {"episodes_per_task": cfg.eval.episodes_per_task, "seed": cfg.eval.seed},
+        "sampler": cfg.train.sampler,
+        "policy_type": cfg.train.policy.type if cfg.train.policy else None,
+        "train_mode": cfg.train.mode,
+        "min_task_weight": cfg.train.min_task_weight,
+        "sampler_alpha": cfg.train.sampler_alpha,
+        "lr_schedule": cfg.train.lr_schedule,
+        "demo_start": cfg.demo_start,
+        "takeover": cfg.takeover.to_dict() if cfg.demo_start == "takeover" else None,
+        "start": None
+        if cfg.dataset.repo_id is None
+        else {
+            "dataset": {k: getattr(cfg.dataset, k) for k in ("repo_id", "root", "revision", "copy")},
+            "policy": {k: getattr(cfg.policy, k) for k in ("path", "revision")},
+        },
+    }
 
 
 def run(cfg: RunConfig, on_ledger_written: Callable[[int], None] | None = None) -> Path:

@@ -9,13 +9,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import atomic_write_text
-
-if TYPE_CHECKING:
-    from adademo_lerobot.loop.run import RunConfig
 
 
 class RunState:
@@ -102,32 +98,6 @@ FIXED_SETTINGS = (
 )
 # Settings that runs started by an earlier release do not record, with the value those runs used.
 SETTINGS_ADDED_LATER = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}
-
-
-def run_settings(cfg: RunConfig, suite: dict) -> dict:
-    """What defines the run, kept in run_state.json (FIXED_SETTINGS among them must not change on resume)."""
-    return {
-        "suite": suite,
-        "strategy": cfg.strategy.to_dict(),
-        "rounds": cfg.rounds,
-        "initial_demos_per_task": cfg.initial_demos_per_task,
-        "seed": cfg.seed,
-        "eval": {"episodes_per_task": cfg.eval.episodes_per_task, "seed": cfg.eval.seed},
-        "sampler": cfg.train.sampler,
-        "policy_type": cfg.train.policy.type if cfg.train.policy else None,
-        "train_mode": cfg.train.mode,
-        "min_task_weight": cfg.train.min_task_weight,
-        "sampler_alpha": cfg.train.sampler_alpha,
-        "lr_schedule": cfg.train.lr_schedule,
-        "demo_start": cfg.demo_start,
-        "takeover": cfg.takeover.to_dict() if cfg.demo_start == "takeover" else None,
-        "start": None
-        if cfg.dataset.repo_id is None
-        else {
-            "dataset": {k: getattr(cfg.dataset, k) for k in ("repo_id", "root", "revision", "copy")},
-            "policy": {k: getattr(cfg.policy, k) for k in ("path", "revision")},
-        },
-    }
 
 
 def saved_stage(run_dir: Path, name: str) -> dict | None:

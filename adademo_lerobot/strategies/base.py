@@ -25,8 +25,6 @@ from adademo_lerobot.core.errors import AdaDemoError
 if TYPE_CHECKING:
     from adademo_lerobot.strategies.round_context import RoundContext
 
-# A task whose expert keeps failing stops after this many fresh initial states per requested demo.
-MAX_DRAWS_PER_DEMO = 3
 # E when none is given (the paper's runs use 5 to 20).
 DEFAULT_TARGET_SUCCESSES = 10
 

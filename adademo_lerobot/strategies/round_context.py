@@ -18,9 +18,11 @@ from adademo_lerobot.core.seeds import fresh_state_seed
 from adademo_lerobot.dataset.ledger import RoundJournal
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import Executor, Pending
-from adademo_lerobot.strategies.base import MAX_DRAWS_PER_DEMO
 from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_demos, demo_entry
 from adademo_lerobot.suites.base import TaskSuite, full_state_step
+
+# A task whose expert keeps failing stops after this many fresh initial states per requested demo.
+MAX_DRAWS_PER_DEMO = 3
 
 
 def eval_entry(task: str, record: EpisodeRecord) -> dict:
