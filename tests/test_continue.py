@@ -208,6 +208,7 @@ def hub():
         yield double
 
 
+@pytest.mark.slow
 def test_continue_from_a_hub_dataset_and_checkpoint(hub, reach_push_dataset, checkpoint, tmp_path):
     """A dataset and a checkpoint a test first pushes to the hub double, pinned by revision; then bad ids."""
     pushed = run_python(

@@ -39,6 +39,7 @@ from adademo_lerobot.samplers import frame_weights, make_sampling_scheme
 
 SIM = ["--robot.type=adademo_sim", "--robot.tasks=reach-v3,push-v3", "--robot.image_size=32"]
 TASK = "reach-v3"
+RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 
 
 class Terminal:
@@ -373,3 +374,26 @@ def test_our_simulated_collection_refuses_a_feature_it_does_not_write(reach_push
         match="reward that adademo does not record",
     )
     assert file_digests(rewarded) == before
+
+
+def test_adademo_run_points_a_robots_dagger_dataset_to_adademo_record(dagger, tmp_path):
+    """adademo-run evaluates in simulation: a dataset recorded on a robot is refused in one line that says where it
+    grows instead, with or without suite flags, and nothing is written."""
+    root = dagger["corrections"]
+    before = file_digests(root)
+    common = [
+        f"--config_path={RECIPES / 'continue_from_checkpoint.yaml'}",
+        f"--run_dir={tmp_path / 'run'}",
+        "--dataset.repo_id=local/rollout_corrections",
+        f"--dataset.root={root}",
+        f"--policy.path={dagger['checkpoint']}",
+    ]
+    assert_cli_error("adademo-run", *common, match="recorded on a robot (adademo_sim)?")
+    assert_cli_error(
+        "adademo-run",
+        *common,
+        "--suite.type=metaworld",
+        "--suite.tasks=reach-v3",
+        match="one recorded on a robot grows with adademo-record",
+    )
+    assert not (tmp_path / "run").exists() and file_digests(root) == before

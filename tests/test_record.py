@@ -151,6 +151,7 @@ def test_a_round_with_a_person_in_the_loop_stopped_then_resumed(recorded, tmp_pa
 
 
 @requires_rendering
+@pytest.mark.slow
 def test_a_budgeted_round_with_a_person_spends_exactly_its_budget_every_round(recorded, tmp_path):
     """`--strategy.type=budgeted --strategy.budget=3`, the simulated run's strategy with a person in it: each of two
     rounds adds exactly 3 demonstrations at failed policy episodes (the second round counts from its own start, not

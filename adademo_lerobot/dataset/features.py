@@ -47,5 +47,10 @@ def check_features_match(found: dict[str, dict], suite: TaskSuite, what: str = "
         raise AdaDemoError(
             f"{what}'s features do not match the suite ({suite.name}: {','.join(suite.tasks)}): "
             + "; ".join(problems)
-            + " (pass the suite the dataset was recorded with: --suite.type=... --suite.tasks=...)"
+            + " (pass the suite the dataset was recorded with: --suite.type=... --suite.tasks=..."
+            + (
+                "; one recorded on a robot grows with adademo-record)"
+                if "observation.environment_state" not in found
+                else ")"
+            )
         )

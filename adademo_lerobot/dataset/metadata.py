@@ -123,6 +123,21 @@ def order_by_onehot(root: Path, task_names: list[str], tasks: pd.DataFrame, num_
     return sorted(position, key=position.get)
 
 
+def imported_episode_values(suite_name: str) -> dict[str, object]:
+    """What an episode without our columns reads as (and is given when we first append): imported, round 0, no
+    seed, no initial or start state (empty lists), start step 0, the dataset's suite (its robot type)."""
+    return {
+        COL_INITIAL_STATE: [],
+        COL_SEED: -1,
+        COL_ROUND: 0,
+        COL_SOURCE: IMPORTED_SOURCE,
+        COL_COLLECTOR: "",
+        COL_SUITE: suite_name,
+        COL_START_STEP: 0,
+        COL_START_STATE: [],
+    }
+
+
 def read_episode_metadata(root: str | Path) -> pd.DataFrame:
     """Per-episode metadata (task, length, frame range, `adademo/*` columns) indexed by `episode_index`.
 
@@ -139,21 +154,9 @@ def read_episode_metadata(root: str | Path) -> pd.DataFrame:
         names = pq.read_schema(f).names
         df = pq.read_table(f, columns=[c for c in base + list(EPISODE_COLUMNS) if c in names]).to_pandas()
         imported += [COL_SOURCE not in df.columns] * len(df)
-        defaults = {
-            COL_ROUND: 0,
-            COL_SOURCE: IMPORTED_SOURCE,
-            COL_SEED: -1,
-            COL_COLLECTOR: "",
-            COL_SUITE: suite_name,
-        }
-        for col, value in defaults.items():
+        for col, value in imported_episode_values(suite_name).items():
             if col not in df.columns:
-                df[col] = value
-        for col in (COL_INITIAL_STATE, COL_START_STATE):
-            if col not in df.columns:
-                df[col] = [np.zeros(0)] * len(df)
-        if COL_START_STEP not in df.columns:
-            df[COL_START_STEP] = 0
+                df[col] = [np.zeros(0)] * len(df) if isinstance(value, list) else value
         tables.append(df)
     df = pd.concat(tables, ignore_index=True)
     # LeRobot's DAgger data: corrections and the policy's own episodes (its frames are read only when some

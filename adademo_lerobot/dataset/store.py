@@ -64,7 +64,6 @@ from adademo_lerobot.dataset.layout import (
     COL_SUITE,
     CORRECTION_SOURCE,
     EPISODE_COLUMNS,
-    IMPORTED_SOURCE,
     SUITE_FILE,
     TXN_BACKUP_DIR,
     TXN_FILE,
@@ -72,6 +71,7 @@ from adademo_lerobot.dataset.layout import (
 from adademo_lerobot.dataset.metadata import (
     episode_files,
     has_dataset,
+    imported_episode_values,
     load_suite_config,
     read_episode_metadata,
 )
@@ -193,32 +193,34 @@ def _episode_files_without_columns(root: Path) -> list[Path]:
     return [f for f in episode_files(root) if not set(EPISODE_COLUMNS) <= set(pq.read_schema(f).names)]
 
 
+# Arrow types of our episode columns, as our writer's features declare them.
+EPISODE_COLUMN_TYPES = {
+    COL_INITIAL_STATE: pa.list_(pa.float64()),
+    COL_SEED: pa.int64(),
+    COL_ROUND: pa.int64(),
+    COL_SOURCE: pa.string(),
+    COL_COLLECTOR: pa.string(),
+    COL_SUITE: pa.string(),
+    COL_START_STEP: pa.int64(),
+    COL_START_STATE: pa.list_(pa.float64()),
+}
+
+
 def _add_adademo_columns(path: Path, suite_name: str, flags: np.ndarray | None = None) -> None:
     """Give the episodes of one meta/episodes file the adademo columns (imported: round 0, no initial state;
     with LeRobot's `intervention` flags, corrections and the policy's own episodes, as they are read), so that
     files written before and after share one schema, which stock LeRobot needs to load them."""
     table = pq.read_table(path)
     n = table.num_rows
-    sources, steps, collectors = [IMPORTED_SOURCE] * n, [0] * n, [""] * n
+    columns = {col: [value] * n for col, value in imported_episode_values(suite_name).items()}
     if flags is not None:
         rows = table.select(["dataset_from_index", "dataset_to_index"]).to_pandas()
-        rows = rows.assign(**{COL_SOURCE: sources, COL_START_STEP: steps, COL_COLLECTOR: collectors})
+        rows = rows.assign(**{c: columns[c] for c in (COL_SOURCE, COL_START_STEP, COL_COLLECTOR)})
         apply_provenance(rows, flags, np.ones(n, dtype=bool))
-        sources, steps = rows[COL_SOURCE].tolist(), rows[COL_START_STEP].tolist()
-        collectors = rows[COL_COLLECTOR].tolist()
-    values = {
-        COL_INITIAL_STATE: pa.array([[] for _ in range(n)], pa.list_(pa.float64())),
-        COL_SEED: pa.array([-1] * n, pa.int64()),
-        COL_ROUND: pa.array([0] * n, pa.int64()),
-        COL_SOURCE: pa.array(sources, pa.string()),
-        COL_COLLECTOR: pa.array(collectors, pa.string()),
-        COL_SUITE: pa.array([suite_name] * n, pa.string()),
-        COL_START_STEP: pa.array(steps, pa.int64()),
-        COL_START_STATE: pa.array([[] for _ in range(n)], pa.list_(pa.float64())),
-    }
-    for name, column in values.items():
+        columns |= {c: rows[c].tolist() for c in (COL_SOURCE, COL_START_STEP, COL_COLLECTOR)}
+    for name, values in columns.items():
         if name not in table.column_names:
-            table = table.append_column(name, column)
+            table = table.append_column(name, pa.array(values, EPISODE_COLUMN_TYPES[name]))
     tmp = path.with_name(f".{path.name}.tmp")
     pq.write_table(table, tmp, compression="snappy")
     os.replace(tmp, path)

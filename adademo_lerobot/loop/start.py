@@ -154,6 +154,14 @@ def choose_suite(root: Path, requested: SuiteConfig, requested_is_default: bool)
     try:
         return rebuild_suite_config(root)
     except AdaDemoError:
+        info = read_info(root)
+        if "observation.environment_state" not in info.get("features", {}):
+            raise AdaDemoError(
+                f"{root} names no simulation suite and has no observation.environment_state: recorded on a robot "
+                f"({info.get('robot_type') or 'robot type not recorded'})? adademo-run evaluates every round in "
+                "simulation; grow a robot's dataset with adademo-record and train with adademo-train "
+                "(docs/robots.md), or pass the suite it was recorded in: --suite.type=... --suite.tasks=..."
+            ) from None
         return requested  # the feature check below says what does not fit
 
 
