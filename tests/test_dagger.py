@@ -376,23 +376,78 @@ def test_our_simulated_collection_refuses_a_feature_it_does_not_write(reach_push
     assert file_digests(rewarded) == before
 
 
-def test_adademo_run_points_a_robots_dagger_dataset_to_adademo_record(dagger, tmp_path):
-    """adademo-run evaluates in simulation: a dataset recorded on a robot is refused in one line that says where it
-    grows instead, with or without suite flags, and nothing is written."""
-    root = dagger["corrections"]
-    before = file_digests(root)
-    common = [
+def run_args(root: Path, checkpoint: Path, run_dir: Path) -> list[str]:
+    return [
         f"--config_path={RECIPES / 'continue_from_checkpoint.yaml'}",
-        f"--run_dir={tmp_path / 'run'}",
-        "--dataset.repo_id=local/rollout_corrections",
+        f"--run_dir={run_dir}",
+        f"--dataset.repo_id=local/{root.name}",
         f"--dataset.root={root}",
-        f"--policy.path={dagger['checkpoint']}",
+        f"--policy.path={checkpoint}",
+        "--strategy.budget=[2]",
+        "--strategy.max_demos_per_task=[2]",
+        "--train.finetune_steps=4",
+        "--train.save_freq=4",
+        "--train.batch_size=4",
+        "--eval.episodes_per_task=2",
+        "--eval.batch_size=2",
+        "--suite.max_episode_steps=60",  # a suite flag without --suite.tasks: the rest comes from the dataset
+        "--torch_threads=1",
     ]
-    assert_cli_error("adademo-run", *common, match="recorded on a robot (adademo_sim)?")
+
+
+@requires_rendering
+def test_adademo_run_continues_a_dagger_dataset_of_the_simulated_robot(dagger, tmp_path):
+    """Two rounds of adademo-run on lerobot-rollout's DAgger data from the simulated robot: the dataset is a
+    robot view of a MetaWorld suite (its camera, its motor names, no environment_state), the rounds' episodes
+    fit beside the DAgger ones (each frame `intervention=True`), the DAgger episodes keep their reading, the
+    user's folder is untouched, and stock LeRobot opens the result."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    root = copy_of(dagger, "all", tmp_path)
+    before, digests = read_episode_metadata(root), file_digests(root)
+    run_cli("adademo-run", *run_args(root, dagger["checkpoint"], tmp_path / "run"))
+    grown = tmp_path / "run" / "dataset"
+    check_dataset_integrity(grown)
+    suite = json.loads((grown / "meta" / "adademo" / "suite.json").read_text())
+    assert (suite["view"], suite["tasks"], suite["camera"], suite["image_size"]) == (
+        "robot",
+        TASK,
+        "corner2",
+        32,
+    )
+    assert suite["max_episode_steps"] == 60
+    info = json.loads((grown / "meta" / "info.json").read_text())
+    assert "observation.environment_state" not in info["features"]
+    assert info["features"]["observation.state"]["names"] == ["x.pos", "y.pos", "z.pos", "gripper.pos"]
+    eps = read_episode_metadata(grown)
+    cols = ["adademo/source", "adademo/start_step", "adademo/collector", "adademo/round"]
+    pd.testing.assert_frame_equal(eps.loc[before.index, cols], before[cols])
+    new = eps.drop(before.index)
+    assert sorted(set(new["adademo/round"])) == [1, 2]  # both rounds added demonstrations
+    assert (new["adademo/seed"] >= 0).all() and (new["task"] == TASK).all()
+    flags = intervention_flags(grown)
+    np.testing.assert_array_equal(flags, stock_flags(grown))
+    for _, ep in new.iterrows():
+        assert flags[int(ep["dataset_from_index"]) : int(ep["dataset_to_index"])].all()
+    assert not flags[: int(before["dataset_to_index"].max())].all()  # the policy's own DAgger frames, still
+    assert LeRobotDataset("local/x", root=grown, video_backend="pyav").meta.total_episodes == len(eps)
+    assert file_digests(root) == digests
+
+
+@requires_rendering
+def test_adademo_run_points_a_real_robots_dataset_to_adademo_record(dagger, tmp_path):
+    """adademo-run evaluates in simulation: a dataset recorded on a real robot (here the DAgger dataset with the
+    robot type an SO-101 would write) is refused in one line that says where it grows instead, with or without
+    suite flags, and nothing is written."""
+    root = copy_of(dagger, "corrections", tmp_path)
+    info_path = root / "meta" / "info.json"
+    info_path.write_text(json.dumps(json.loads(info_path.read_text()) | {"robot_type": "so101_follower"}))
+    before = file_digests(root)
+    args = run_args(root, dagger["checkpoint"], tmp_path / "run")
+    assert_cli_error("adademo-run", *args, match="recorded on a robot (so101_follower)?")
     assert_cli_error(
         "adademo-run",
-        *common,
-        "--suite.type=metaworld",
+        *args,
         "--suite.tasks=reach-v3",
         match="one recorded on a robot grows with adademo-record",
     )

@@ -286,3 +286,36 @@ def test_bad_input_gets_one_error_and_no_change(recorded, reach_push_dataset, ac
         "adademo-record", *record_args(root, checkpoint, "--demo_start=later"), match="unknown --demo_start"
     )
     assert file_digests(root) == before
+
+
+@pytest.mark.parametrize("scene_state", [False, True], ids=["hand", "scene"])
+def test_the_robot_view_of_a_suite_sees_what_the_simulated_robot_reads(scene_state):
+    """A dataset recorded on adademo_sim continues in simulation (adademo-run) through the robot view of the
+    MetaWorld suite: same feature names and shapes as the robot's, and the same readings in the same scene."""
+    from adademo_lerobot.dataset.features import dataset_features
+    from adademo_lerobot.lerobot_plugins.adademo_sim import JOINTS, AdademoSim
+    from adademo_lerobot.lerobot_plugins.config_adademo_sim import AdademoSimConfig
+    from adademo_lerobot.loop.record import robot_features
+    from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
+
+    config = AdademoSimConfig(task="push-v3", tasks="reach-v3,push-v3", camera="", scene_state=scene_state)
+    robot = AdademoSim(config)
+    robot.connect()
+    try:
+        robot.reset_scene(5)
+        readings = robot.get_observation()
+    finally:
+        robot.disconnect()
+    view = "robot_scene" if scene_state else "robot"
+    suite = MetaWorldSuiteConfig(tasks="reach-v3,push-v3", view=view).build()
+    mine = dataset_features(suite)
+    theirs = robot_features(robot, use_video=False)
+    assert mine.keys() == theirs.keys()
+    for key, feature in theirs.items():
+        assert (tuple(mine[key]["shape"]), mine[key]["names"]) == (tuple(feature["shape"]), feature["names"])
+    env = suite.make_env("push-v3")
+    obs, _ = env.reset(options={"initial_state": suite.sample_initial_state("push-v3", 5)})
+    env.close()
+    names = theirs["observation.state"]["names"]
+    assert names[:4] == list(JOINTS)
+    np.testing.assert_array_equal(obs["agent_pos"], [readings[n] for n in names])

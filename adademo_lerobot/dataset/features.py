@@ -7,7 +7,8 @@ from adademo_lerobot.suites.base import TaskSuite
 
 
 def dataset_features(suite: TaskSuite) -> dict[str, dict]:
-    """`observation.state`, `observation.environment_state`, `action` and, for `pixels_state`, the camera."""
+    """`observation.state`, `observation.environment_state`, `action` and, for `pixels_state`, the camera; in a
+    robot view (`--suite.view=robot|robot_scene`), the adademo_sim robot's: no environment_state, named motors."""
     from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE  # imports torch: here
 
     cfg = suite.config
@@ -16,6 +17,13 @@ def dataset_features(suite: TaskSuite) -> dict[str, dict]:
         OBS_ENV_STATE: {"dtype": "float32", "shape": (suite.env_state_dim,), "names": None},
         ACTION: {"dtype": "float32", "shape": (suite.action_dim,), "names": None},
     }
+    if getattr(cfg, "view", "env") != "env":
+        from adademo_lerobot.suites.metaworld import ROBOT_ACTIONS, ROBOT_JOINTS
+
+        scene = [f"scene.{i}" for i in range(suite.state_dim - len(ROBOT_JOINTS))]
+        del features[OBS_ENV_STATE]
+        features[OBS_STATE]["names"] = [*ROBOT_JOINTS, *scene]
+        features[ACTION]["names"] = list(ROBOT_ACTIONS)
     if cfg.obs_type == "pixels_state":
         size = cfg.image_size
         features[f"{OBS_IMAGES}.{cfg.camera}"] = {

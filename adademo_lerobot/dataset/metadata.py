@@ -6,6 +6,8 @@ Both survive LeRobot's own dataset tools, or are rebuilt from what those keep:
   `delete_episodes` or `split_dataset` (which copy no extra files) gets it back from what they do keep: the
   suite family (`robot_type` in `meta/info.json`), the task strings (`meta/tasks.parquet`), the one-hot position
   of each task (read from one frame of each task) and the camera features; the step limit is the suite's default;
+  a dataset recorded on the simulated robot (`adademo_sim`, e.g. by lerobot-record or lerobot-rollout) is a robot
+  view of a MetaWorld suite (`--suite.view=robot|robot_scene`), rebuilt from its tasks, camera and state size;
 - the per-episode `adademo/*` columns of `meta/episodes` are kept by merge/aggregate; delete/split drop them, and
   episodes without them (also those of datasets recorded elsewhere) count as imported: round 0, no initial state.
 """
@@ -39,7 +41,9 @@ from adademo_lerobot.dataset.layout import (
 from adademo_lerobot.suites import SuiteConfig, suite_config_from_dict
 
 ENV_STATE_KEY = "observation.environment_state"
+STATE_KEY = "observation.state"
 IMAGES_PREFIX = "observation.images."
+SIM_ROBOT = "adademo_sim"  # lerobot_plugins' simulated robot: its datasets are a view of a MetaWorld suite
 
 
 def has_dataset(root: str | Path) -> bool:
@@ -78,6 +82,8 @@ def rebuild_suite_config(root: Path) -> SuiteConfig:
     """The suite, from LeRobot's own files (for datasets whose suite.json a LeRobot tool did not copy)."""
     info = read_info(root)
     kind = info.get("robot_type")
+    if kind == SIM_ROBOT:
+        return sim_robot_suite_config(root, info)
     how = "pass the suite flags (--suite.type=metaworld|fetch|adroit --suite.tasks=task1,task2,...)"
     try:
         config = suite_config_from_dict({"type": kind})
@@ -98,6 +104,10 @@ def rebuild_suite_config(root: Path) -> SuiteConfig:
             f"{max(num_tasks, 0)}-task one-hot of {ENV_STATE_KEY}; {how}"
         )
     config.tasks = ",".join(order_by_onehot(root, task_names, tasks, num_tasks))
+    return _with_camera(config, features)
+
+
+def _with_camera(config: SuiteConfig, features: dict) -> SuiteConfig:
     cameras = [k[len(IMAGES_PREFIX) :] for k, ft in features.items() if k.startswith(IMAGES_PREFIX)]
     if cameras:
         config.obs_type, config.camera = "pixels_state", cameras[0]
@@ -105,17 +115,52 @@ def rebuild_suite_config(root: Path) -> SuiteConfig:
     return config
 
 
-def order_by_onehot(root: Path, task_names: list[str], tasks: pd.DataFrame, num_tasks: int) -> list[str]:
-    """Task names in one-hot order, read from the last `num_tasks` values of one frame of each task."""
+def sim_robot_suite_config(root: Path, info: dict) -> SuiteConfig:
+    """The MetaWorld suite whose robot view an `adademo_sim` dataset is: its task strings are the robot's
+    MetaWorld tasks (`--dataset.single_task=reach-v3`), its camera the robot's, and scene readings in
+    observation.state (`--robot.scene_state=true`) make the view `robot_scene`."""
+    from adademo_lerobot.suites.metaworld import PROPRIO_DIM, RAW_OBS_DIM, all_task_names
+
+    features = info.get("features", {})
+    tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
+    task_names = list(tasks.index)
+    unknown = [t for t in task_names if t not in all_task_names()]
+    if unknown or not task_names:
+        raise AdaDemoError(
+            f"{root} was recorded on the simulated robot ({SIM_ROBOT}) but its task {unknown[0] if unknown else ''!r} "
+            "is not a MetaWorld task: continue it with the suite flags (--suite.type=metaworld "
+            "--suite.view=robot --suite.tasks=reach-v3,...), or record with --dataset.single_task=<the MetaWorld task>"
+        )
+    config = suite_config_from_dict({"type": "metaworld"})
+    scene = int(features.get(STATE_KEY, {}).get("shape", [PROPRIO_DIM])[0]) - PROPRIO_DIM
+    if scene == 0:
+        config.view, config.tasks = "robot", ",".join(task_names)
+    else:
+        num_tasks = scene - RAW_OBS_DIM
+        if num_tasks != len(task_names):
+            raise AdaDemoError(
+                f"{root}'s scene readings end with a {num_tasks}-task one-hot but it has {len(task_names)} "
+                f"task(s): pass the robot's tasks (--robot.tasks) in order: --suite.type=metaworld "
+                "--suite.view=robot_scene --suite.tasks=task1,task2,..."
+            )
+        config.view = "robot_scene"
+        config.tasks = ",".join(order_by_onehot(root, task_names, tasks, num_tasks, key=STATE_KEY))
+    return _with_camera(config, features)
+
+
+def order_by_onehot(
+    root: Path, task_names: list[str], tasks: pd.DataFrame, num_tasks: int, key: str = ENV_STATE_KEY
+) -> list[str]:
+    """Task names in one-hot order, read from the last `num_tasks` values of `key` in one frame of each task."""
     position: dict[str, int] = {}
     for path in data_files(root):
-        table = pq.read_table(path, columns=["task_index", ENV_STATE_KEY])
+        table = pq.read_table(path, columns=["task_index", key])
         for name in task_names:
             if name in position:
                 continue
             rows = table.filter(pc.equal(table["task_index"], int(tasks.loc[name, "task_index"])))
             if rows.num_rows:
-                position[name] = int(np.argmax(np.asarray(rows[ENV_STATE_KEY][0].as_py())[-num_tasks:]))
+                position[name] = int(np.argmax(np.asarray(rows[key][0].as_py())[-num_tasks:]))
         if len(position) == len(task_names):
             break
     if sorted(position.values()) != list(range(num_tasks)):

@@ -69,6 +69,7 @@ from adademo_lerobot.dataset.layout import (
     TXN_FILE,
 )
 from adademo_lerobot.dataset.metadata import (
+    ENV_STATE_KEY,
     episode_files,
     has_dataset,
     imported_episode_values,
@@ -434,10 +435,14 @@ class DemoDataset:
         indices = []
         # Features we do not produce but carry, e.g. `intervention`: True (our frames are never the policy's own).
         carried = carried_frame_values(dataset.meta.features)
+        # A robot view's dataset (`--suite.view=robot`) has no environment_state: the expert read it, the
+        # dataset keeps what the robot records.
+        unrecorded = {ENV_STATE_KEY} - set(dataset.meta.features)
         with _no_image_embedding_without_images():
             for demo in demos:
                 for frame in demo.frames:
-                    dataset.add_frame({**carried, **frame, "task": demo.task})
+                    kept = {k: v for k, v in frame.items() if k not in unrecorded} if unrecorded else frame
+                    dataset.add_frame({**carried, **kept, "task": demo.task})
                 indices.append(dataset.meta.total_episodes)
                 columns = {
                     COL_INITIAL_STATE: np.asarray(demo.initial_state, dtype=np.float64).tolist(),

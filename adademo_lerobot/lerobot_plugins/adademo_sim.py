@@ -19,9 +19,7 @@ from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnected
 
 from adademo_lerobot.core.seeds import derive_seed
 from adademo_lerobot.lerobot_plugins.config_adademo_sim import AdademoSimConfig
-
-JOINTS = ("x.pos", "y.pos", "z.pos", "gripper.pos")
-ACTIONS = ("x.vel", "y.vel", "z.vel", "gripper.vel")
+from adademo_lerobot.suites.metaworld import ROBOT_ACTIONS as ACTIONS, ROBOT_JOINTS as JOINTS
 
 # The simulated robots connected in this process, latest last: the scripted teleoperator drives the scene of the
 # latest (LeRobot builds robot and teleoperator separately, and only the robot owns a scene).

@@ -13,6 +13,7 @@ then expands a copy under the run folder (the original stays byte-for-byte uncha
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -142,17 +143,18 @@ def locate_checkpoint(args: StartPolicyArgs) -> tuple[Path, str | None]:
 
 
 def choose_suite(root: Path, requested: SuiteConfig, requested_is_default: bool) -> SuiteConfig:
-    """The dataset's suite (its suite.json, or rebuilt from LeRobot's files), or the suite flags for a dataset
-    that says nothing; suite flags that contradict the dataset's suite.json are refused."""
+    """The dataset's suite (its suite.json, or rebuilt from LeRobot's files, with what suite flags without
+    --suite.tasks change), or the suite flags for a dataset that says nothing; suite flags that contradict the
+    dataset's suite.json are refused."""
     stored = try_load_suite_config(root) if (root / SUITE_FILE).exists() else None
     if stored is not None:
         if not requested_is_default:
             check_same_suite(stored, requested)
         return stored
-    if not requested_is_default:
+    if not requested_is_default and requested.tasks:
         return requested
     try:
-        return rebuild_suite_config(root)
+        rebuilt = rebuild_suite_config(root)
     except AdaDemoError:
         info = read_info(root)
         if "observation.environment_state" not in info.get("features", {}):
@@ -163,6 +165,17 @@ def choose_suite(root: Path, requested: SuiteConfig, requested_is_default: bool)
                 "(docs/robots.md), or pass the suite it was recorded in: --suite.type=... --suite.tasks=..."
             ) from None
         return requested  # the feature check below says what does not fit
+    return rebuilt if requested_is_default else flags_over(rebuilt, requested)
+
+
+def flags_over(rebuilt: SuiteConfig, requested: SuiteConfig) -> SuiteConfig:
+    """The rebuilt suite with what the user's suite flags set (e.g. --suite.max_episode_steps without tasks)."""
+    if type(requested) is not type(rebuilt):
+        return requested  # another family: the feature check says what does not fit
+    default = type(requested)()
+    changed = {f.name: getattr(requested, f.name) for f in dataclasses.fields(requested)}
+    changed = {k: v for k, v in changed.items() if v != getattr(default, k)}
+    return dataclasses.replace(rebuilt, **changed)
 
 
 def file_digests(root: Path) -> dict[str, str]:

@@ -39,6 +39,14 @@ PREV_OBS_DIM = 18  # MetaWorld's frame stacking: the previous step's hand, gripp
 EPISODE_ATTRIBUTES = ("pickCompleted", "placeCompleted", "reachCompleted", "_target_to_obj_init")
 PROPRIO_DIM = 4  # hand xyz + gripper opening: the robot's own state
 ACTION_DIM = 4
+# What the `adademo_sim` robot (lerobot_plugins) reads and takes, by LeRobot's motor names.
+ROBOT_JOINTS = ("x.pos", "y.pos", "z.pos", "gripper.pos")
+ROBOT_ACTIONS = ("x.vel", "y.vel", "z.vel", "gripper.vel")
+# How a dataset's frames see the scene: `env`, LeRobot's env convention (observation.state = the hand,
+# observation.environment_state = the 39-D state + task one-hot); `robot`, what the adademo_sim robot records (the
+# hand as observation.state, no environment_state; with a camera); `robot_scene`, the robot with
+# `--robot.scene_state=true` (the hand then the scene readings in observation.state).
+VIEWS = ("env", "robot", "robot_scene")
 FPS = 80
 RENDER_SIZE = 256  # frames for videos of state-only envs
 PRISTINE_MODEL_FIELDS = (
@@ -53,6 +61,9 @@ PRISTINE_MODEL_FIELDS = (
 @dataclass
 class MetaWorldSuiteConfig(SuiteConfig):
     camera: str = "corner2"
+    # `env` (default), or the view of a dataset recorded on the adademo_sim robot: `robot` or `robot_scene`
+    # (set by itself when such a dataset is continued; see VIEWS).
+    view: str = "env"
 
     @classmethod
     def suite_class(cls) -> type[MetaWorldSuite]:
@@ -220,6 +231,7 @@ class MetaWorldTaskEnv(SuiteTaskEnv):
         super().__init__(suite, task, terminate_on_success)
         self._raw = make_raw_env(task, self._pixels, suite.config.image_size, self._camera)
         self._renderer = None
+        self._scene_in_state = suite.config.view == "robot_scene"
 
     def _restore(self, state: np.ndarray) -> np.ndarray:
         return restore_layout(self._raw, state)
@@ -229,9 +241,11 @@ class MetaWorldTaskEnv(SuiteTaskEnv):
         return raw, reward, bool(info.get("success", 0.0))
 
     def _observation(self, raw: np.ndarray) -> dict:
+        env_state = np.concatenate([raw.astype(np.float64), self._onehot])
+        hand = raw[:PROPRIO_DIM].astype(np.float64)
         obs = {
-            "agent_pos": raw[:PROPRIO_DIM].astype(np.float64),
-            "environment_state": np.concatenate([raw.astype(np.float64), self._onehot]),
+            "agent_pos": np.concatenate([hand, env_state]) if self._scene_in_state else hand,
+            "environment_state": env_state,  # the expert's input in every view
         }
         if self._pixels:
             obs["pixels"] = self._camera_image()
@@ -298,9 +312,13 @@ class MetaWorldSuite(SuiteBase):
 
     def __init__(self, config: MetaWorldSuiteConfig):
         config = self._checked_config(config)
+        if config.view not in VIEWS:
+            raise AdaDemoError(f"unknown --suite.view={config.view!r}; choose one of {', '.join(VIEWS)}")
         tasks = self.canonical_task_names(split_task_list(config.tasks))
         check_task_names(tasks, all_task_names(), "metaworld")
         self._set_tasks(config, tasks)
+        if config.view == "robot_scene":
+            self.state_dim = PROPRIO_DIM + self.env_state_dim
 
     @classmethod
     def canonical_task_names(cls, tasks: list[str]) -> list[str]:
