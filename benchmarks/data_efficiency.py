@@ -27,6 +27,7 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
                        failure answered from a fresh state (ablation A; budgeted minus it is principle B alone)
     costed, costed_knn budgeted + --strategy.rollout_cost=1 (rollouts paid from the budget), random or k-NN states
     costed_w5          costed with --strategy.failure_worth=5 (evaluates longer before it closes a task)
+    costed_probe       costed with --strategy.probe_unsure=true (a task is probed before it gets nothing)
 
 `--test_states per_seed` evaluates each seed on its own fixed states (--eval.seed=100+seed), so that the intervals
 over seeds include the sampling of the test states; `shared` (the default, and every folder written before it)
@@ -100,6 +101,12 @@ ALL_ARMS = {
         "--strategy.rollout_cost=1",
         "--strategy.failure_worth=5",
     ],
+    "costed_probe": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        "--strategy.rollout_cost=1",
+        "--strategy.probe_unsure=true",
+    ],
     # Corrections from the point of failure (--demo_start=takeover), with either rule (the default chosen here).
     "budgeted_takeover": ["--strategy.type=budgeted", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
     "adademo_takeover": ["--strategy.type=adademo", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
@@ -127,6 +134,7 @@ LABELS = {
     "costed": "Budgeted paying for rollouts (cost 1, W = 3)",
     "costed_knn": "Budgeted paying for rollouts (cost 1, W = 3), k-NN states",
     "costed_w5": "Budgeted paying for rollouts (cost 1, W = 5)",
+    "costed_probe": "Budgeted paying for rollouts (cost 1, W = 3), probing unsure tasks",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",

@@ -453,3 +453,28 @@ def test_rollout_cost_counts_rollouts_against_the_budget_and_closes_tasks_not_wo
     free = BudgetRound(dict(outcomes), budget=20, batch_size=2)
     records = {r.task: r for r in free.strategy(rollout_cost=0.0).expand(free)}
     assert sum(r.demos_added for r in records.values()) == 20
+
+
+def test_probing_keeps_a_task_that_succeeded_by_luck_from_getting_nothing():
+    """Paying for rollouts, two lucky successes close a task at 40 % failure (Beta(1, 1) -> mean 1/4 < 1/W):
+    with --strategy.probe_unsure it gets single rollouts until its 80th percentile falls under 1/W or it shows
+    failures, which are answered at once; a truly solved task costs one probe more and gets nothing."""
+    outcomes = {"solved": "S" * 100, "lucky": "SS" + "FSFSFFSFSF" * 10, "weak": "FSFFSFFSFFSFFSFF" * 6}
+
+    def run(**options):
+        ctx = BudgetRound(dict(outcomes), budget=30, batch_size=2, max_demos_per_task=8)
+        records = {r.task: r for r in ctx.strategy(rollout_cost=1.0, **options).expand(ctx)}
+        assert sum(r.demos_added + r.expert_failures + r.eval_episodes for r in records.values()) <= 30
+        return ctx, records
+
+    ctx, plain = run()
+    assert plain["lucky"].eval_episodes == 2 and plain["lucky"].demos_added == 0
+    ctx, probed = run(probe_unsure=True)
+    assert probed["lucky"].extra["probes"] >= 1 and probed["lucky"].failures >= 1
+    assert probed["lucky"].demos_added >= probed["lucky"].failures
+    # solved: Beta(1, k + 1)'s 80th percentile, 1 - 0.2 ** (1 / (k + 1)), is under 1/3 from k = 3 successes on.
+    assert probed["solved"].eval_episodes == 3 and probed["solved"].demos_added == 0
+    assert probed["solved"].extra["probes"] == 1 and "probes" not in plain["solved"].extra
+    for task, r in probed.items():  # every demonstration at a failed state or a fresh one, as without probes
+        assert all(ctx.outcomes[task][ctx._position[task][s]] == "F" for s in ctx.collected[task])
+        assert r.demos_added == len(ctx.collected[task]) + len(ctx.fresh[task])

@@ -80,13 +80,16 @@ class BudgetedConfig(StrategyConfig):
     failure_worth: float = DEFAULT_FAILURE_WORTH
     # With a rollout cost: `random` states, or `knn`: the states predicted likeliest to fail first.
     rank_states: str = "random"
+    # With a rollout cost: probe a task with single rollouts before leaving it without fresh demonstrations, while
+    # its failure rate may still be 1 / failure_worth or more (the posterior's 80th percentile).
+    probe_unsure: bool = False
 
     def validate(self) -> None:
         check_per_round("budget", self.budget, required=True)
         check_per_round("max_demos_per_task", self.max_demos_per_task, required=True)
         check_eval_bound(self.max_eval_episodes_per_task)
         check_decay(self.posterior_decay)
-        check_rollout_cost(self.rollout_cost, self.failure_worth, self.rank_states)
+        check_rollout_cost(self.rollout_cost, self.failure_worth, self.rank_states, self.probe_unsure)
 
     def answers_failures_only(self) -> bool:
         return self.rollout_cost is None  # paying for rollouts, it also buys demos from fresh states
@@ -102,14 +105,18 @@ class BudgetedConfig(StrategyConfig):
             rollout_cost=self.rollout_cost,
             failure_worth=self.failure_worth,
             rank_states=self.rank_states,
+            probe_unsure=self.probe_unsure,
         )
 
 
-def check_rollout_cost(rollout_cost: float | None, failure_worth: float, rank_states: str) -> None:
+def check_rollout_cost(
+    rollout_cost: float | None, failure_worth: float, rank_states: str, probe_unsure: bool = False
+) -> None:
     if rollout_cost is None:
-        if failure_worth != DEFAULT_FAILURE_WORTH or rank_states != "random":
+        if failure_worth != DEFAULT_FAILURE_WORTH or rank_states != "random" or probe_unsure:
             raise AdaDemoError(
-                "--strategy.failure_worth and --strategy.rank_states are used with --strategy.rollout_cost: give "
+                "--strategy.failure_worth, --strategy.rank_states and --strategy.probe_unsure are used with "
+                "--strategy.rollout_cost: give "
                 "the cost of a policy rollout in demonstrations (e.g. 1 on a robot), or drop them"
             )
         return
@@ -137,6 +144,7 @@ class BudgetedStrategy:
     rollout_cost: float | None = None
     failure_worth: float = DEFAULT_FAILURE_WORTH
     rank_states: str = "random"
+    probe_unsure: bool = False
     commits_by_task = False  # one loop over the whole round: demos are committed in the order they arrive
 
     def start(self, ctx: InnerLoop, resumed: dict | None) -> dict:
@@ -152,6 +160,8 @@ class BudgetedStrategy:
                 "failure_worth": self.failure_worth,
                 "rank_states": self.rank_states,
             }
+        if self.probe_unsure:  # (rounds journaled before the option keep their settings)
+            settings["probe_unsure"] = True
         return settings
 
     def first_split(

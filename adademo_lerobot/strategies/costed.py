@@ -19,6 +19,11 @@ is worth its rollouts:
   W p and pays while the task's posterior mean failure rate is at least 1 / W; the rest is split across those
   tasks in proportion to it (at most CAP each, as the budgeted split). Budget that no task is worth is left
   unspent, which is what the user saves;
+- `--strategy.probe_unsure=true`: before a task is left without fresh demonstrations (its posterior mean failure
+  rate under 1 / W), it is probed with one rollout at a time while even its optimistic value u is still at least
+  1 / W. Without it a task that succeeds twice by luck (Beta(1, 1) then mean 1/4 < 1/3) gets nothing all round
+  (MT10: reach-v3 at 62 % success, benchmarks/results/mt10_cost); a probe that fails is answered at once, as any
+  failure is, so it is not lost;
 - `--strategy.rank_states=knn` takes, for evaluation and for those fresh demonstrations, the candidate states a
   k-nearest-neighbour vote over every outcome seen so far (earlier rounds and this one) predicts most likely to
   fail, instead of the next random ones: demonstrations at predicted failures without a rollout.
@@ -146,6 +151,22 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
         records[t].extra["fresh_demos"] += ctx.collect_demo(t, seed, records[t])
         ctx.progress(t, records[t])
 
+    def evaluate(task: str, n: int) -> None:
+        """Up to `n` rollouts of the task (within the batch, CAP and the evaluation bound), each failure answered
+        by a demonstration at its state."""
+        record = records[task]
+        n = min(
+            n,
+            ctx.batch_size,
+            cap - record.demos_added,
+            strategy.max_eval_episodes_per_task - record.eval_episodes,
+        )
+        outcomes = ctx.evaluate(task, next_states(task, n))
+        ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
+        posterior[task] = count_outcomes(ctx, task, record, outcomes, posterior[task], ctx.collect_demo)
+        for outcome in outcomes if task in rankers else ():
+            rankers[task].add(outcome.seed, not outcome.success)
+
     fresh_draws = dict.fromkeys(tasks, 0)
     while True:
         left = strategy.budget - round_cost(records, c)
@@ -160,21 +181,23 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
         if worth and affordable >= 1:
             task = max(worth, key=lambda t: (worth[t], -records[t].eval_episodes, -tasks.index(t)))
             record = records[task]
-            n = min(
-                ctx.batch_size,
-                max(1, record.failures),  # one state at first, more as the task shows failures
-                affordable,
-                cap - record.demos_added,
-                strategy.max_eval_episodes_per_task - record.eval_episodes,
-            )
-            outcomes = ctx.evaluate(task, next_states(task, n))
-            ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
-            posterior[task] = count_outcomes(ctx, task, record, outcomes, posterior[task], ctx.collect_demo)
-            for outcome in outcomes if task in rankers else ():
-                rankers[task].add(outcome.seed, not outcome.success)
+            evaluate(task, min(max(1, record.failures), affordable))  # one state at first, more as it fails
             continue
         # Principle A alone: fresh-state demonstrations where W p >= 1, split in proportion to p within CAP.
         weak = {t: m for t in open_tasks if strategy.failure_worth * (m := failure_mean(posterior[t])) >= 1}
+        unsure = {
+            t: u
+            for t in open_tasks
+            if strategy.probe_unsure
+            and t not in weak
+            and records[t].eval_episodes < strategy.max_eval_episodes_per_task
+            and strategy.failure_worth * (u := optimistic_failure(t)) >= 1
+        }
+        if unsure and affordable >= 1:  # learn whether it is weak before the fresh demonstrations are split
+            task = max(unsure, key=lambda t: (unsure[t], -tasks.index(t)))
+            records[task].extra["probes"] = records[task].extra.get("probes", 0) + 1
+            evaluate(task, 1)
+            continue
         if not weak or left < 1:
             break
         share = allocate(int(left), weak, {t: cap - records[t].demos_added for t in weak})
