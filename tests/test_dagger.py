@@ -284,6 +284,8 @@ def test_adademo_record_continues_a_dagger_dataset(dagger, kind, demo_start, tmp
     )
     done = run_cli("adademo-record", *record_args(root, dagger["checkpoint"], *takeover))
     assert "round 1:" in done.stdout
+    if demo_start == "takeover":  # what the person added, by kind
+        assert "correction" in done.stdout.split("round 1:")[1].split(" added to ")[0]
     check_dataset_integrity(root)
     eps = read_episode_metadata(root)
     old, new = eps.loc[before.index], eps[eps["adademo/round"] == 1]
@@ -297,6 +299,9 @@ def test_adademo_record_continues_a_dagger_dataset(dagger, kind, demo_start, tmp
     if demo_start == "takeover":
         assert set(new["adademo/source"]) == {"correction"}
     assert LeRobotDataset("local/x", root=root, video_backend="pyav").meta.total_episodes == len(eps)
+    assert not (
+        root / "images"
+    ).exists()  # as stock lerobot-record leaves its datasets: no empty frame folders
 
     work = person_work(root).set_index("round")
     assert work.loc[1, "person frames"] == int(new["length"].sum())
@@ -431,6 +436,7 @@ def test_adademo_run_continues_a_dagger_dataset_of_the_simulated_robot(dagger, t
         assert flags[int(ep["dataset_from_index"]) : int(ep["dataset_to_index"])].all()
     assert not flags[: int(before["dataset_to_index"].max())].all()  # the policy's own DAgger frames, still
     assert LeRobotDataset("local/x", root=grown, video_backend="pyav").meta.total_episodes == len(eps)
+    assert not (grown / "images").exists()
     assert file_digests(root) == digests
 
 

@@ -274,7 +274,7 @@ def test_bad_input_gets_one_error_and_no_change(recorded, reach_push_dataset, ac
     assert_cli_error(
         "adademo-record",
         *record_args(root, checkpoint, "--robot.image_size=48"),
-        match="another adademo_sim setup",
+        match="differs (dataset (32, 32, 3), robot (48, 48, 3)) (set the robot as it was recorded",
     )
     assert_cli_error(
         "adademo-record", *record_args(root, checkpoint, "--judge=keys"), match="needs the person's keys"

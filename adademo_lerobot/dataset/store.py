@@ -142,6 +142,18 @@ def _commit_write(root: Path) -> None:
     shutil.rmtree(root / TXN_BACKUP_DIR, ignore_errors=True)
 
 
+def _remove_empty_folders(folder: Path) -> None:
+    """LeRobot's writer leaves `images/<camera>/` behind, empty, once a resumed session's frames are encoded to
+    video (stock lerobot-record's datasets have none): remove the empty folders, nothing else."""
+    if not folder.is_dir():
+        return
+    for path in sorted(folder.rglob("*"), key=lambda p: len(p.parts), reverse=True):
+        if path.is_dir() and not any(path.iterdir()):
+            path.rmdir()
+    if not any(folder.iterdir()):
+        folder.rmdir()
+
+
 @contextlib.contextmanager
 def _signals_deferred():
     """Ctrl-C (and SIGTERM) wait until a rollback has finished: a second Ctrl-C must not leave it half done. Only
@@ -424,6 +436,7 @@ class DemoDataset:
             os.replace(write_root, self.root)
         else:
             _commit_write(self.root)
+        _remove_empty_folders(self.root / "images")
         return indices
 
     @staticmethod

@@ -90,7 +90,10 @@ def check_recorded_with(root: Path, robot, features: dict[str, dict]) -> None:
     ]
     if problems:
         raise AdaDemoError(
-            f"{root} was recorded with another {robot.robot_type} setup: " + "; ".join(problems)
+            f"{root} was recorded with another {robot.robot_type} setup: "
+            + "; ".join(problems)
+            + " (set the robot as it was recorded: its cameras and their size, e.g. --robot.cameras=... or, on "
+            "adademo_sim, --robot.image_size / --robot.camera / --robot.scene_state)"
         )
 
 
@@ -137,8 +140,13 @@ def plan_lines(root: Path, round_index: int, tasks: list[str], strategy, episode
     return [
         head,
         table(["task", "latest success", "predicted demos", "episode s", "minutes"], rows),
-        f"about {total_s / 60:.0f} minutes of episodes, plus resetting scenes",
+        f"about {_duration(total_s)} of episodes, plus resetting scenes",
     ]
+
+
+def _duration(seconds: float) -> str:
+    """A plan's time as a person reads it: seconds under two minutes, then minutes."""
+    return f"{seconds:.0f} seconds" if seconds < 120 else f"{seconds / 60:.0f} minutes"
 
 
 def dataset_tasks(root: Path) -> list[str]:
@@ -229,5 +237,10 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
                 ],
             )
         )
-        print(f"round {round_index}: {sum(r.demos_added for r in records)} demonstrations added to {root}")
+        corrections = sum(r.corrections for r in records)
+        demos = sum(r.demos_added for r in records) - corrections
+        added = f"{demos} demonstration{'s' * (demos != 1)}" + (
+            f" and {corrections} correction{'s' * (corrections != 1)}" if corrections else ""
+        )
+        print(f"round {round_index}: {added} added to {root}")
     return records
