@@ -147,6 +147,7 @@ run_command(lambda cfg: run(cfg, on_ledger_written=lambda r: os.kill(os.getpid()
 """
 
 
+@pytest.mark.slow
 def test_a_kill_between_the_ledger_and_the_journal_end_loses_no_round(tmp_path):
     """The round number is one truth: a kill right after round 1's ledger write, before its journal is closed,
     must not make the rerun skip round 2 (it used to record round 2 as done with no demos)."""
