@@ -20,6 +20,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import BIN, run_cli
 
+from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 
@@ -126,9 +127,14 @@ def test_ray_gives_the_same_round_as_local(reach_push_dataset, ckpt, ray_address
     shutil.copytree(reach_push_dataset, local)
     shutil.copytree(reach_push_dataset, remote)
     run_cli("adademo-expand", *expand_args(local, ckpt))
-    run_cli("adademo-expand", *expand_args(remote, ckpt), *ray_flags(ray_address))
+    done = run_cli("adademo-expand", *expand_args(remote, ckpt), *ray_flags(ray_address))
     same_round(local, remote, 1)
-    assert len(read_episode_metadata(local)) > 6  # the round did add demos
+    added = len(read_episode_metadata(local)) - 6
+    assert added > 0  # the round did add demos
+    # The workers wrote them (shards, merged by the driver: frames never came back), and no shard is left.
+    assert f"({added} written by the Ray workers, merged here)" in done.stdout
+    assert not remote.with_name(f".{remote.name}.adademo-shards").exists()
+    check_dataset_integrity(remote)
 
     # Corrections: the takeover is chosen on the worker that ran the rollout, the correction on any worker.
     takeover = ["--strategy.type=budgeted", "--strategy.budget=4"]

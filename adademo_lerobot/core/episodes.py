@@ -23,6 +23,10 @@ class Demonstration:
     start_state: np.ndarray | None = None  # None: the initial state is all there is (a robot's joints)
     is_correction: bool = False
 
+    @property
+    def num_frames(self) -> int:
+        return len(self.frames)
+
 
 @dataclass
 class CollectionResult:

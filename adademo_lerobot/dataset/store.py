@@ -46,6 +46,7 @@ from adademo_lerobot.core.files import (
 )
 from adademo_lerobot.core.patching import temporarily_set
 from adademo_lerobot.dataset.features import dataset_features
+from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.interventions import (
     apply_provenance,
     carried_frame_values,
@@ -364,6 +365,44 @@ class DemoDataset:
     ) -> list[int]:
         """Write episodes recorded on a robot (the dataset exists) in one transaction; returns their indices."""
         return self._append(list(demos), round_index, source, collector, robot_type, None)
+
+    def can_merge(self, suite: TaskSuite) -> bool:
+        """Whether workers' shards (written with the suite's features) can be merged here: the dataset exists,
+        every episode file has our columns, and its features are exactly the suite's (none carried, e.g. a DAgger
+        dataset's `intervention`). Otherwise demonstrations come back as frames and are appended."""
+        from lerobot.utils.constants import DEFAULT_FEATURES
+
+        if not has_dataset(self.root) or _episode_files_without_columns(self.root):
+            return False
+        found = read_info(self.root).get("features", {})
+        expected = dataset_features(suite)
+        ours = {k: ft for k, ft in found.items() if k not in DEFAULT_FEATURES}
+        return ours.keys() == expected.keys() and all(
+            tuple(ours[k]["shape"]) == tuple(ft["shape"]) and ours[k]["dtype"] == ft["dtype"]
+            for k, ft in expected.items()
+        )
+
+    def merge(self, shards: list, round_index: int, source: str, collector: str) -> list[int]:
+        """Merge finished shards (`dataset/shards.py`: episodes the workers wrote) into the dataset in one
+        transaction, in order; returns their episode indices. The dataset exists (the round's first commit of a
+        new dataset is an append)."""
+        from adademo_lerobot.dataset.shards import merge_shards
+
+        if not shards:
+            return []
+        what = f"{len(shards)} episode{'s' * (len(shards) != 1)}"
+        with COMMIT_LOCK:
+            _begin_write(self.root, list(REWRITTEN_META))
+            try:
+                indices = merge_shards(self.root, shards, round_index, source, collector)
+            except BaseException as err:
+                with _signals_deferred():
+                    recover_interrupted_write(self.root, failed_here=True)
+                if isinstance(err, Exception) and not isinstance(err, AdaDemoError):
+                    raise write_failure(err, self.root, what) from err
+                raise
+            _commit_write(self.root)
+        return indices
 
     def _append(
         self,

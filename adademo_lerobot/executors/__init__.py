@@ -33,6 +33,10 @@ class RayArgs:
     num_workers: int = 2
     num_cpus_per_worker: float = 1.0
     num_gpus_per_worker: float = 0.0
+    # Workers write the demonstrations they collect beside the dataset (`.<dataset>.adademo-shards/`, on storage
+    # every node reaches) and commits merge them: frames never travel through the driver. false: frames come
+    # back to the driver, which writes them (a cluster without shared storage).
+    worker_writes: bool = True
 
 
 @dataclass
@@ -88,6 +92,10 @@ class Lazy:
 class Executor(Protocol):
     batch_size: int
     parallel_tasks: bool  # True: the caller may run several tasks' loops at once (their units interleave)
+    # True: collected demonstrations are written by the workers into `shard_folder` (when the caller sets one)
+    # and come back as shards (`dataset/shards.py`), not frames.
+    writes_shards: bool
+    shard_folder: str | None
 
     def use_policy(self, path: str | None) -> None: ...
     def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> Pending: ...
@@ -105,6 +113,8 @@ class LocalExecutor:
     """One worker in this process; units run when their result is read."""
 
     parallel_tasks = False
+    writes_shards = False  # frames are already where the dataset is written
+    shard_folder = None
 
     def __init__(
         self,

@@ -209,6 +209,9 @@ class RayExecutor:
         self._inflight: list[list] = [[] for _ in self.actors]
         self._lock = threading.Lock()
         self._policy: str | None = None
+        # The workers write what they collect (--ray.worker_writes): where, set per round (None: frames come back).
+        self.writes_shards = args.worker_writes
+        self.shard_folder: str | None = None
 
     def _least_loaded(self) -> int:
         import ray
@@ -244,7 +247,7 @@ class RayExecutor:
         start_state: list[float] | None = None,
         takeover: TakeoverArgs | None = None,
     ) -> RayPending:
-        return self._submit("collect", task, seed, start_state, takeover)
+        return self._submit("collect", task, seed, start_state, takeover, self.shard_folder)
 
     def worker_pids(self) -> list[int]:
         return self._watch.get([a.pid.remote() for a in self.actors])

@@ -9,6 +9,7 @@ in which order they run.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -86,9 +87,11 @@ class EpisodeWorker:
         seed: int,
         start_state: list[float] | None = None,
         takeover: TakeoverArgs | None = None,
+        shard_folder: str | None = None,
     ) -> CollectionResult:
         """A demonstration from the seed's initial state, or, for a correction, from `start_state` (`takeover`:
-        how many attempts there, and what when they fail)."""
+        how many attempts there, and what when they fail). With `shard_folder` the demonstration is written
+        there, as a shard (`dataset/shards.py`), and the result carries the shard instead of the frames."""
         from adademo_lerobot.evaluation.rollouts import (
             one_torch_thread,  # a policy expert acts as it would locally
         )
@@ -96,7 +99,12 @@ class EpisodeWorker:
         start = None if start_state is None else np.asarray(start_state, np.float64)
         initial = self.suite.sample_initial_state(task, seed)
         with one_torch_thread():
-            return self.collector.collect(task, initial, seed, start, takeover)
+            result = self.collector.collect(task, initial, seed, start, takeover)
+        if shard_folder is not None and result.demonstration is not None:
+            from adademo_lerobot.dataset.shards import write_shard
+
+            result.demonstration = write_shard(Path(shard_folder), self.suite, result.demonstration)
+        return result
 
     def pid(self) -> int:
         return os.getpid()

@@ -27,6 +27,7 @@ from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.layout import COL_ROUND
 from adademo_lerobot.dataset.ledger import RoundJournal, append_ledger, ledger_rounds
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
+from adademo_lerobot.dataset.shards import remove_shard_folders
 from adademo_lerobot.dataset.store import DemoDataset, recover_interrupted_write
 from adademo_lerobot.executors import make_executor
 from adademo_lerobot.strategies import planned_demos
@@ -244,8 +245,11 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     if on_ledger_written is not None:
         on_ledger_written(round_index)
     journal.finish()
+    remove_shard_folders(root)  # what is left there is a killed worker's unfinished shard
     print(format_round_table(records))
-    print(f"round {round_index}: {sum(r.demos_added for r in records)} new episodes in {root}")
+    merged = ctx.merged_shards
+    by_workers = f" ({merged} written by the Ray workers, merged here)" if merged else ""
+    print(f"round {round_index}: {sum(r.demos_added for r in records)} new episodes in {root}{by_workers}")
     return records
 
 

@@ -17,12 +17,13 @@ from adademo_lerobot.core.episodes import Demonstration, TaskRoundRecord
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
 from adademo_lerobot.dataset.ledger import RoundJournal
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
+from adademo_lerobot.dataset.shards import Shard
 
 
-def demo_entry(task: str, seed: int, demo: Demonstration, steps: int) -> dict:
-    """The journal's entry for a demonstration (a correction's carries its start step): `steps` is what it cost
-    (the expert's env steps, every attempt; a person's frames)."""
-    entry = {"type": "demo", "task": task, "seed": int(seed), "steps": int(steps), "frames": len(demo.frames)}
+def demo_entry(task: str, seed: int, demo: Demonstration | Shard, steps: int) -> dict:
+    """The journal's entry for a demonstration, in memory or in a worker's shard (a correction's carries its
+    start step): `steps` is what it cost (the expert's env steps, every attempt; a person's frames)."""
+    entry = {"type": "demo", "task": task, "seed": int(seed), "steps": int(steps), "frames": demo.num_frames}
     if demo.is_correction:
         entry["start_step"] = demo.start_step
     return entry

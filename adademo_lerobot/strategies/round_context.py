@@ -5,6 +5,7 @@ the strategy asked for them (`OrderedAppender`)."""
 
 from __future__ import annotations
 
+import shutil
 import threading
 import time
 from collections.abc import Callable
@@ -16,6 +17,7 @@ from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.episodes import Demonstration, EpisodeRecord, TaskRoundRecord
 from adademo_lerobot.core.seeds import fresh_state_seed
 from adademo_lerobot.dataset.ledger import RoundJournal
+from adademo_lerobot.dataset.shards import Shard, remove_shards, shard_folder
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_demos, demo_entry
@@ -79,8 +81,9 @@ class OrderedAppender:
         self._head = 0  # index in `order` of the first unfinished task
         self._held: dict[str, list[Demonstration]] = {t: [] for t in self.order}
         self._finished: set[str] = set()
-        self._buffer: list[Demonstration] = []
+        self._buffer: list[Demonstration | Shard] = []
         self._lock = threading.RLock()
+        self.merged_shards = 0  # demonstrations the workers wrote themselves (merged, not appended)
 
     def add(self, task: str, demo: Demonstration) -> None:
         with self._lock:
@@ -106,7 +109,12 @@ class OrderedAppender:
 
     def flush(self) -> None:
         with self._lock:
-            if self._buffer:
+            if self._buffer and isinstance(self._buffer[0], Shard):
+                self.dataset.merge(self._buffer, self.round_index, self.source, self.collector)
+                remove_shards(self._buffer)
+                self.merged_shards += len(self._buffer)
+                self._buffer = []
+            elif self._buffer:
                 self.dataset.append(self.suite, self._buffer, self.round_index, self.source, self.collector)
                 self._buffer = []
 
@@ -154,6 +162,15 @@ class RoundContext(JournaledRound):
             self.suite.tasks if self.commit_by_task else None,
         )
         self._committed = committed_demos(self.dataset.root, self.round_index)
+        if self.executor.writes_shards and self.dataset.can_merge(self.suite):
+            folder = shard_folder(self.dataset.root, self.round_index)
+            shutil.rmtree(folder, ignore_errors=True)  # a stopped run's shards: never merged, collected again
+            self.executor.shard_folder = str(folder)
+
+    @property
+    def merged_shards(self) -> int:
+        """Demonstrations this round's workers wrote themselves, merged into the dataset (`dataset/shards.py`)."""
+        return self._appender.merged_shards
 
     @property
     def batch_size(self) -> int:

@@ -1,0 +1,224 @@
+"""Episodes written where they are collected: a worker writes each demonstration it collects as a one-episode
+LeRobot dataset (a shard) in a folder every node can reach, and a commit merges finished shards into the dataset
+with LeRobot's own aggregation steps (`lerobot.datasets.aggregate`: parquet rows re-indexed, videos remuxed, never
+re-encoded; episode rows, tasks, info and stats updated). Frames never travel through the driver.
+
+A shard is whole or absent: it is built in a sibling folder and renamed into place (`DemoDataset`'s creating
+path), so a worker killed mid-shard leaves only a `.*.adademo-creating` folder, which nothing merges. The merge
+runs inside the dataset's write transaction (`dataset/store.py`): it only creates files, and rewrites the three it
+backs up, so a failed or killed merge rolls back like any append.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from adademo_lerobot.core.episodes import Demonstration
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.files import atomic_write_json
+from adademo_lerobot.dataset.info import read_info
+from adademo_lerobot.dataset.layout import COL_COLLECTOR, COL_ROUND, COL_SOURCE, CORRECTION_SOURCE
+
+SHARD_REPO_ID = "local/adademo-shard"
+
+
+@dataclass
+class Shard:
+    """A finished shard: where it is and what a round's books need of its demonstration (not its frames)."""
+
+    path: str
+    task: str
+    seed: int
+    num_frames: int
+    start_step: int
+    is_correction: bool
+    row: dict  # its meta/episodes row, per-episode stats included
+    stats: dict  # its meta/stats.json
+
+
+def shard_folder(root: Path, round_index: int) -> Path:
+    """Where a round's shards go: beside the dataset (as reachable as the dataset is), never inside it."""
+    return _shards_root(root) / f"round-{round_index:03d}"
+
+
+def remove_shard_folders(root: Path) -> None:
+    """Every round's shard folder of the dataset at `root` (once its rounds are done)."""
+    shutil.rmtree(_shards_root(root), ignore_errors=True)
+
+
+def _shards_root(root: Path) -> Path:
+    root = Path(root)
+    return root.with_name(f".{root.name}.adademo-shards")
+
+
+def remove_shards(shards: list[Shard]) -> None:
+    """Merged shards are deleted (their episodes are in the dataset now)."""
+    for shard in shards:
+        shutil.rmtree(shard.path, ignore_errors=True)
+
+
+def write_shard(folder: Path, suite, demo: Demonstration) -> Shard:
+    """Write `demo` as a one-episode dataset under `folder` (on the worker that collected it)."""
+    from adademo_lerobot.dataset.store import DemoDataset
+
+    path = Path(folder) / f"{demo.task}-{demo.seed}-{demo.start_step}-{uuid.uuid4().hex[:12]}"
+    # Round, source and collector are the commit's (set when merged); the shard keeps the rest of the row.
+    DemoDataset(SHARD_REPO_ID, path, suite.config).append(suite, [demo], 0, "shard", "")
+    row = pq.read_table(_the_one(path, "meta/episodes/chunk-*/file-*.parquet")).to_pylist()[0]
+    stats = json.loads((path / "meta" / "stats.json").read_text())
+    return Shard(
+        str(path),
+        demo.task,
+        int(demo.seed),
+        len(demo.frames),
+        int(demo.start_step),
+        demo.is_correction,
+        row,
+        stats,
+    )
+
+
+def _the_one(folder: Path, pattern: str) -> Path:
+    if not folder.is_dir():
+        raise AdaDemoError(
+            f"a Ray worker wrote a demonstration to {folder}, which this machine cannot see: keep the dataset on "
+            "storage every Ray node reaches, or pass --ray.worker_writes=false (frames then come back to this "
+            "process); the same command resumes"
+        )
+    files = sorted(folder.glob(pattern))
+    if len(files) != 1:
+        raise AdaDemoError(
+            f"shard {folder.parent if folder.name == 'meta' else folder} is not whole ({pattern})"
+        )
+    return files[0]
+
+
+def _shifted(row: dict, column: str, by: int | None = None, value: int | None = None) -> None:
+    """A bookkeeping column's per-episode stats in `row` after it was re-indexed: shifted `by`, or all `value`
+    (a count or a spread does not change)."""
+    for name in [c for c in row if c.startswith(f"stats/{column}/")]:
+        if name.rsplit("/", 1)[1] not in ("count", "std"):
+            row[name] = [value if value is not None else x + by for x in row[name]]
+
+
+def _stats_shifted(stats: dict, column: str, by: int | None = None, value: int | None = None) -> None:
+    for stat, v in stats[column].items():
+        if stat not in ("count", "std"):
+            stats[column][stat] = [value if value is not None else x + by for x in v]
+
+
+def merge_shards(root: Path, shards: list[Shard], round_index: int, source: str, collector: str) -> list[int]:
+    """Append the shards' episodes to the dataset at `root`, in order, as one new data file, one new episodes
+    file and one new video file per camera (LeRobot's file layout and writers); returns their episode indices.
+    Reads each shard's frames once (its episode row and stats came with the `Shard`). Call inside the dataset's
+    write transaction (it creates files and rewrites info, stats and tasks)."""
+    from lerobot.datasets.compute_stats import aggregate_stats
+    from lerobot.datasets.io_utils import (
+        cast_stats_to_numpy,
+        load_stats,
+        write_stats,
+        write_table_one_row_group_per_episode,
+    )
+    from lerobot.datasets.utils import DEFAULT_DATA_PATH, DEFAULT_EPISODES_PATH, DEFAULT_VIDEO_PATH
+    from lerobot.datasets.video_utils import concatenate_video_files, get_video_duration_in_s
+
+    root = Path(root)
+    info = read_info(root)
+    tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
+    last_file = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))[-1]
+    schema = pq.read_schema(last_file)
+    meta = pq.ParquetFile(last_file)
+    last = meta.read_row_group(meta.num_row_groups - 1).to_pylist()[-1]
+    chunk_size = int(info["chunks_size"])
+    first, frames = int(info["total_episodes"]), int(info["total_frames"])
+    video_keys = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
+
+    def next_file(prefix: str) -> tuple[int, int]:
+        return _next_file(int(last[f"{prefix}/chunk_index"]), int(last[f"{prefix}/file_index"]), chunk_size)
+
+    data_at, meta_at = next_file("data"), next_file("meta/episodes")
+    video_at = {key: next_file(f"videos/{key}") for key in video_keys}
+
+    data_tables, rows, stats, offsets = [], [], [load_stats(root)], dict.fromkeys(video_keys, 0.0)
+    for k, shard in enumerate(shards):
+        folder = Path(shard.path)
+        data = pq.ParquetFile(_the_one(folder, "data/chunk-*/file-*.parquet")).read()
+        row, shard_stats = dict(shard.row), {c: dict(v) for c, v in shard.stats.items()}
+        task = row["tasks"][0]
+        if task not in tasks.index:
+            tasks = pd.concat([tasks, pd.DataFrame({"task_index": [len(tasks)]}, index=pd.Index([task]))])
+        task_index, n, episode = int(tasks.loc[task, "task_index"]), data.num_rows, first + k
+        for name, values in (
+            ("episode_index", [episode] * n),
+            ("index", range(frames, frames + n)),
+            ("task_index", [task_index] * n),
+        ):
+            data = data.set_column(data.column_names.index(name), name, pa.array(values, pa.int64()))
+        row |= {
+            "episode_index": episode,
+            "dataset_from_index": frames,
+            "dataset_to_index": frames + n,
+            "data/chunk_index": data_at[0],
+            "data/file_index": data_at[1],
+            "meta/episodes/chunk_index": meta_at[0],
+            "meta/episodes/file_index": meta_at[1],
+            COL_ROUND: round_index,
+            COL_SOURCE: CORRECTION_SOURCE if shard.is_correction else source,
+            COL_COLLECTOR: collector,
+        }
+        for key in video_keys:
+            row |= {
+                f"videos/{key}/chunk_index": video_at[key][0],
+                f"videos/{key}/file_index": video_at[key][1],
+                f"videos/{key}/from_timestamp": offsets[key] + row[f"videos/{key}/from_timestamp"],
+                f"videos/{key}/to_timestamp": offsets[key] + row[f"videos/{key}/to_timestamp"],
+            }
+            # The next episode starts where this file ends, as LeRobot's aggregation places it.
+            offsets[key] += get_video_duration_in_s(_the_one(folder, f"videos/{key}/chunk-*/file-*.mp4"))
+        _shifted(row, "episode_index", value=episode)
+        _shifted(row, "index", by=frames)
+        _shifted(row, "task_index", value=task_index)
+        _stats_shifted(shard_stats, "episode_index", value=episode)
+        _stats_shifted(shard_stats, "index", by=frames)
+        _stats_shifted(shard_stats, "task_index", value=task_index)
+        data_tables.append(data)
+        rows.append(row)
+        stats.append(cast_stats_to_numpy(shard_stats))
+        frames += n
+
+    def path(template: str, at: tuple[int, int], **keys) -> Path:
+        out = root / template.format(chunk_index=at[0], file_index=at[1], **keys)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        return out
+
+    write_table_one_row_group_per_episode(pa.concat_tables(data_tables), path(DEFAULT_DATA_PATH, data_at))
+    pq.write_table(pa.Table.from_pylist(rows, schema=schema), path(DEFAULT_EPISODES_PATH, meta_at))
+    for key in video_keys:
+        sources = [_the_one(Path(s.path), f"videos/{key}/chunk-*/file-*.mp4") for s in shards]
+        concatenate_video_files(sources, path(DEFAULT_VIDEO_PATH, video_at[key], video_key=key))
+    tasks.index.name = "task"
+    tasks.to_parquet(root / "meta" / "tasks.parquet")
+    write_stats(aggregate_stats(stats), root)
+    total = first + len(shards)
+    info |= {
+        "total_episodes": total,
+        "total_frames": frames,
+        "total_tasks": len(tasks),
+        "splits": {"train": f"0:{total}"},
+    }
+    atomic_write_json(root / "meta" / "info.json", info)
+    return list(range(first, total))
+
+
+def _next_file(chunk: int, file: int, chunk_size: int) -> tuple[int, int]:
+    from lerobot.datasets.utils import update_chunk_file_indices
+
+    return update_chunk_file_indices(chunk, file, chunk_size)
