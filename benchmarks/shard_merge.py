@@ -41,7 +41,7 @@ def collect_demos(suite, n: int) -> list:
 
 def measure(suite, demos: list, batch: int, tmp: Path) -> dict:
     from adademo_lerobot.dataset.metadata import read_episode_metadata
-    from adademo_lerobot.dataset.shards import write_shard
+    from adademo_lerobot.dataset.shards import merge_into, write_shard
     from adademo_lerobot.dataset.store import DemoDataset
 
     base, a, b = tmp / "base", tmp / "append", tmp / "merge"
@@ -62,7 +62,7 @@ def measure(suite, demos: list, batch: int, tmp: Path) -> dict:
     start = time.perf_counter()
     dataset = DemoDataset.open("local/x", b)
     for k in range(0, len(shards), batch):
-        dataset.merge(shards[k : k + batch], 1, "budgeted", "scripted")
+        merge_into(dataset, shards[k : k + batch], 1, "budgeted", "scripted")
     merge_s = time.perf_counter() - start
 
     ea, eb = read_episode_metadata(a), read_episode_metadata(b)

@@ -19,7 +19,7 @@ from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.dataset.shards import write_shard
+from adademo_lerobot.dataset.shards import merge_into, write_shard
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
@@ -49,7 +49,7 @@ def appended_and_merged(tmp_path: Path, suite, n_base: int, n_new: int, batch: i
     a, m = DemoDataset.open("local/x", appended), DemoDataset.open("local/x", merged)
     for k in range(0, n_new, batch):
         a.append(suite, new[k : k + batch], 1, "budgeted", "scripted")
-        assert m.merge(shards[k : k + batch], 1, "budgeted", "scripted") == list(
+        assert merge_into(m, shards[k : k + batch], 1, "budgeted", "scripted") == list(
             range(n_base + k, n_base + min(k + batch, n_new))
         )
     return appended, merged
@@ -113,5 +113,5 @@ def test_a_merge_that_cannot_finish_changes_nothing(tmp_path):
     shutil.rmtree(shards[1].path)  # written on a node this machine cannot see
     before = file_digests(root)
     with pytest.raises(AdaDemoError, match="which this machine cannot see: .*--ray.worker_writes=false"):
-        DemoDataset.open("local/x", root).merge(shards, 1, "budgeted", "scripted")
+        merge_into(DemoDataset.open("local/x", root), shards, 1, "budgeted", "scripted")
     assert file_digests(root) == before

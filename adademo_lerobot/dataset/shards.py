@@ -115,6 +115,15 @@ def _stats_shifted(stats: dict, column: str, by: int | None = None, value: int |
             stats[column][stat] = [value if value is not None else x + by for x in v]
 
 
+def merge_into(dataset, shards: list[Shard], round_index: int, source: str, collector: str) -> list[int]:
+    """Merge finished shards into a `DemoDataset` (it exists, `can_merge`) in one transaction, in order; returns
+    their episode indices."""
+    if not shards:
+        return []
+    with dataset.writing(f"{len(shards)} episode{'s' * (len(shards) != 1)}"):
+        return merge_shards(dataset.root, shards, round_index, source, collector)
+
+
 def merge_shards(root: Path, shards: list[Shard], round_index: int, source: str, collector: str) -> list[int]:
     """Append the shards' episodes to the dataset at `root`, in order, as one new data file, one new episodes
     file and one new video file per camera (LeRobot's file layout and writers); returns their episode indices.

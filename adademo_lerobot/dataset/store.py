@@ -382,19 +382,15 @@ class DemoDataset:
             for k, ft in expected.items()
         )
 
-    def merge(self, shards: list, round_index: int, source: str, collector: str) -> list[int]:
-        """Merge finished shards (`dataset/shards.py`: episodes the workers wrote) into the dataset in one
-        transaction, in order; returns their episode indices. The dataset exists (the round's first commit of a
-        new dataset is an append)."""
-        from adademo_lerobot.dataset.shards import merge_shards
-
-        if not shards:
-            return []
-        what = f"{len(shards)} episode{'s' * (len(shards) != 1)}"
+    @contextlib.contextmanager
+    def writing(self, what: str):
+        """A write of files into the existing dataset (e.g. a merge of workers' shards, `dataset/shards.py`) as
+        one transaction: the block may create files and rewrite info, stats and tasks; if it fails it is rolled
+        back before the exception leaves (a machine failure then says what was being written)."""
         with COMMIT_LOCK:
             _begin_write(self.root, list(REWRITTEN_META))
             try:
-                indices = merge_shards(self.root, shards, round_index, source, collector)
+                yield
             except BaseException as err:
                 with _signals_deferred():
                     recover_interrupted_write(self.root, failed_here=True)
@@ -402,7 +398,6 @@ class DemoDataset:
                     raise write_failure(err, self.root, what) from err
                 raise
             _commit_write(self.root)
-        return indices
 
     def _append(
         self,
