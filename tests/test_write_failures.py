@@ -166,6 +166,8 @@ def test_ctrl_c_during_a_commit_rolls_back_and_the_rerun_finishes_exactly(
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,
+            # Ctrl-C as in a terminal, even when the suite itself runs in the background (which ignores SIGINT).
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         )
         txn, deadline = root / TXN_FILE, time.time() + 300
         listed = None
