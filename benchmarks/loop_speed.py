@@ -11,8 +11,9 @@ One run, one machine:
 2. Ray executor with 1 and 2 workers on the same episodes (same results: the executor tests check it),
    throughput as a ratio to (workers x the raw rate of step 1); Ray's fixed cost per command (start a local
    Ray, create the actors, load the policy) and its cost per episode against local.
-3. What the driver does per episode (journal fsync, result transfer, dataset appends), measured, and the
-   ceiling that puts on a round however many workers run episodes.
+3. What the driver does per collected demonstration (journal fsync, result transfer, writing it: appending the
+   frames, or merging the shard a worker wrote), measured, and the ceiling that puts on a round however many
+   workers run episodes.
 Writes benchmarks/results/loop_speed.md.
 """
 
@@ -49,10 +50,23 @@ def run_units(executor, suite, ckpt: str, episodes: int, demos: int, seed: int) 
     }
 
 
+def fetched(pending: list) -> tuple[list, float]:
+    """Results once every one is ready on the workers, and the seconds per result of fetching them (the transfer
+    alone, not the wait)."""
+    import ray
+
+    ray.wait([p.ref for p in pending], num_returns=len(pending))
+    start = time.perf_counter()
+    results = [p.result() for p in pending]
+    return results, (time.perf_counter() - start) / len(pending)
+
+
 def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
-    """Per-episode driver work: a journal line with fsync, fetching a result, and appending demos (per demo,
-    committed 10 at a time as `--commit_every` does by default)."""
+    """Per-episode driver work: a journal line with fsync; a collected demonstration fetched from a worker and
+    written, either as frames appended by the driver or as a shard the worker wrote and the driver merges (both
+    committed 10 at a time, as `--commit_every` does by default)."""
     from adademo_lerobot.dataset.ledger import RoundJournal
+    from adademo_lerobot.dataset.shards import merge_into
     from adademo_lerobot.dataset.store import DemoDataset
 
     journal = RoundJournal(tmp / "journal", 1)
@@ -60,18 +74,32 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
     for k in range(200):
         journal.append({"type": "eval", "task": "reach-v3", "seed": k, "success": False, "steps": 200})
     journal_s = (time.perf_counter() - start) / 200
-    pending = [executor.collect("push-v3", 7000 + k) for k in range(demos)]
-    start = time.perf_counter()
-    results = [p.result() for p in pending]
-    fetch_s = (time.perf_counter() - start) / demos  # includes waiting for the workers: an upper bound
-    dataset = DemoDataset("local/bench", tmp / "appends", suite.config)
+    executor.shard_folder = None  # frames come back
+    results, fetch_s = fetched([executor.collect("push-v3", 7000 + k) for k in range(demos)])
     good = [r.demonstration for r in results if r.demonstration is not None]
-    dataset.append(suite, good[:1], 0, "bench", "metaworld-scripted")  # create it
+    appended, merged = DemoDataset("local/bench", tmp / "appends", suite.config), tmp / "merges"
+    appended.append(suite, good[:1], 0, "bench", "metaworld-scripted")  # create it
+    DemoDataset("local/bench", merged, suite.config).append(suite, good[:1], 0, "bench", "metaworld-scripted")
     start = time.perf_counter()
     for begin in range(1, len(good), 10):
-        dataset.append(suite, good[begin : begin + 10], 1, "bench", "metaworld-scripted")
+        appended.append(suite, good[begin : begin + 10], 1, "bench", "metaworld-scripted")
     append_s = (time.perf_counter() - start) / max(len(good) - 1, 1)
-    return {"journal_s": journal_s, "fetch_s": fetch_s, "append_s": append_s}
+    executor.shard_folder = str(tmp / "shards")  # the workers write what they collect
+    results, fetch_shard_s = fetched([executor.collect("push-v3", 7000 + k) for k in range(demos)])
+    shards = [r.demonstration for r in results if r.demonstration is not None][1:]
+    dataset = DemoDataset.open("local/bench", merged)
+    start = time.perf_counter()
+    for begin in range(0, len(shards), 10):
+        merge_into(dataset, shards[begin : begin + 10], 1, "bench", "metaworld-scripted")
+    merge_s = (time.perf_counter() - start) / max(len(shards), 1)
+    executor.shard_folder = None
+    return {
+        "journal_s": journal_s,
+        "fetch_s": fetch_s,
+        "append_s": append_s,
+        "fetch_shard_s": fetch_shard_s,
+        "merge_s": merge_s,
+    }
 
 
 def main() -> None:
@@ -134,7 +162,10 @@ def main() -> None:
         )
     per_episode = (rows[1][2]["eval_seconds"] - base["eval_seconds"]) / episodes
     per_demo = (rows[1][2]["collect_seconds"] - base["collect_seconds"]) / (len(TASKS) * args.demos)
-    per_episode_s = driver["journal_s"] + driver["fetch_s"] + driver["append_s"]
+    per_demo_append_s = driver["journal_s"] + driver["fetch_s"] + driver["append_s"]
+    per_demo_merge_s = driver["journal_s"] + driver["fetch_shard_s"] + driver["merge_s"]
+    one_worker = rows[1][2]["collect_steps"] / rows[1][2]["collect_seconds"]
+    demos_per_s = one_worker / (rows[1][2]["collect_steps"] / (len(TASKS) * args.demos))
     lines += [
         "",
         "Ray's ratios are against workers x the raw rate (the ideal for that many cores); with 2 workers on 2 cores "
@@ -145,20 +176,23 @@ def main() -> None:
         f"- Ray cost per unit against local, 1 worker: {1000 * per_episode:+.1f} ms per evaluation episode (in batches "
         f"of 10), {1000 * per_demo:+.1f} ms per expert episode.",
         "",
-        "## The driver's work per episode, and the ceiling it sets",
+        "## The driver's work per collected demonstration, and the ceiling it sets",
         "",
-        f"- journal line with fsync (every evaluation and every expert failure): {1000 * driver['journal_s']:.2f} ms",
-        f"- fetching an expert episode's result from a worker (frames included; includes waiting): "
-        f"{1000 * driver['fetch_s']:.2f} ms",
-        f"- appending a demonstration to the dataset (committed 10 at a time): {1000 * driver['append_s']:.1f} ms",
+        "Measured with 2 workers, results fetched once they are all ready (the transfer alone, not the wait), "
+        "commits of 10:",
         "",
-        f"At most {1000 * per_episode_s:.1f} ms of driver time per collected demonstration (less per evaluation: no "
-        f"append), the driver serves at most ~{1 / per_episode_s:.0f} demonstrations/s. One worker collects "
-        f"{rows[0][2]['collect_steps'] / rows[0][2]['collect_seconds'] / (rows[0][2]['collect_steps'] / (len(TASKS) * args.demos)):.1f} "
-        "demonstrations/s here, so the driver keeps up with about "
-        f"{(1 / per_episode_s) / (rows[0][2]['collect_steps'] / rows[0][2]['collect_seconds'] / (rows[0][2]['collect_steps'] / (len(TASKS) * args.demos))):.0f} "
-        "collecting workers; evaluation-only work (journal lines of < 1 ms) scales much further. With 64 workers the "
-        "dataset appends are the ceiling for expert collection: a larger `--commit_every` lowers their cost per demo.",
+        "| | journal line (fsync) | fetch a result | write it into the dataset | driver ms per demonstration |",
+        "| --- | --- | --- | --- | --- |",
+        f"| frames to the driver, appended there (`--ray.worker_writes=false`) | {1000 * driver['journal_s']:.2f} | "
+        f"{1000 * driver['fetch_s']:.2f} | {1000 * driver['append_s']:.1f} | {1000 * per_demo_append_s:.1f} |",
+        f"| the worker writes a shard, the driver merges it (default) | {1000 * driver['journal_s']:.2f} | "
+        f"{1000 * driver['fetch_shard_s']:.2f} | {1000 * driver['merge_s']:.1f} | {1000 * per_demo_merge_s:.1f} |",
+        "",
+        f"One Ray worker collects {demos_per_s:.1f} demonstrations/s here (recorded, not written). A driver at "
+        f"{1000 * per_demo_merge_s:.1f} ms per demonstration keeps up with about "
+        f"{1 / per_demo_merge_s / demos_per_s:.0f} such workers (appending on the driver: "
+        f"{1 / per_demo_append_s / demos_per_s:.1f}); each worker then also spends the time to write its shards "
+        "(benchmarks/results/shard_merge.md). Evaluation-only work (a journal line per episode) scales much further.",
     ]
     (RESULTS / "loop_speed.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

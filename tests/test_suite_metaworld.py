@@ -1,5 +1,7 @@
 """The MetaWorld suite: exact initial-state restore, determinism, task conditioning, bad task names."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -175,3 +177,15 @@ def test_a_dataset_collected_with_a_task_group_accepts_the_same_group_on_the_com
         check_same_suite(stored, MetaWorldSuiteConfig(tasks="mt10,assembly-v3"))
     fetch = suite_config_from_dict(make_suite(FetchSuiteConfig(tasks="push")).config.to_dict())
     check_same_suite(fetch, FetchSuiteConfig(tasks="push"))  # short names too
+
+
+def test_the_default_view_is_stored_as_before_robot_views_existed():
+    """Datasets' suite.json and runs' settings written before `--suite.view` keep matching: the default view is not
+    stored (a run started earlier resumes), a robot view is and comes back."""
+    from adademo_lerobot.suites import suite_config_from_dict
+
+    default = MetaWorldSuiteConfig(tasks="reach-v3")
+    assert "view" not in default.to_dict() and "view" not in json.loads(default.to_json())
+    assert suite_config_from_dict(default.to_dict()).view == "env"
+    robot = MetaWorldSuiteConfig(tasks="reach-v3", view="robot")
+    assert suite_config_from_dict(json.loads(robot.to_json())).view == "robot"

@@ -69,6 +69,12 @@ class MetaWorldSuiteConfig(SuiteConfig):
     def suite_class(cls) -> type[MetaWorldSuite]:
         return MetaWorldSuite
 
+    def to_dict(self) -> dict:
+        out = super().to_dict()
+        if out["view"] == "env":  # as every dataset and run written before robot views stored it: unchanged
+            del out["view"]
+        return out
+
 
 def all_task_names() -> list[str]:
     from metaworld.env_dict import ALL_V3_ENVIRONMENTS
