@@ -50,15 +50,18 @@ def run_units(executor, suite, ckpt: str, episodes: int, demos: int, seed: int) 
     }
 
 
-def fetched(pending: list) -> tuple[list, float]:
-    """Results once every one is ready on the workers, and the seconds per result of fetching them (the transfer
-    alone, not the wait)."""
+def fetched(executor, task: str, seeds: range) -> tuple[list, float, float]:
+    """Collect at `seeds`: the results, the seconds per result of fetching them once every one is ready on the
+    workers (the transfer alone, not the wait), and the workers' demonstrations per second (submit to all ready)."""
     import ray
 
+    start = time.perf_counter()
+    pending = [executor.collect(task, seed) for seed in seeds]
     ray.wait([p.ref for p in pending], num_returns=len(pending))
+    rate = len(pending) / (time.perf_counter() - start)
     start = time.perf_counter()
     results = [p.result() for p in pending]
-    return results, (time.perf_counter() - start) / len(pending)
+    return results, (time.perf_counter() - start) / len(pending), rate
 
 
 def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
@@ -75,7 +78,7 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
         journal.append({"type": "eval", "task": "reach-v3", "seed": k, "success": False, "steps": 200})
     journal_s = (time.perf_counter() - start) / 200
     executor.shard_folder = None  # frames come back
-    results, fetch_s = fetched([executor.collect("push-v3", 7000 + k) for k in range(demos)])
+    results, fetch_s, frames_rate = fetched(executor, "push-v3", range(7000, 7000 + demos))
     good = [r.demonstration for r in results if r.demonstration is not None]
     appended, merged = DemoDataset("local/bench", tmp / "appends", suite.config), tmp / "merges"
     appended.append(suite, good[:1], 0, "bench", "metaworld-scripted")  # create it
@@ -85,7 +88,7 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
         appended.append(suite, good[begin : begin + 10], 1, "bench", "metaworld-scripted")
     append_s = (time.perf_counter() - start) / max(len(good) - 1, 1)
     executor.shard_folder = str(tmp / "shards")  # the workers write what they collect
-    results, fetch_shard_s = fetched([executor.collect("push-v3", 7000 + k) for k in range(demos)])
+    results, fetch_shard_s, shards_rate = fetched(executor, "push-v3", range(7000, 7000 + demos))
     shards = [r.demonstration for r in results if r.demonstration is not None][1:]
     dataset = DemoDataset.open("local/bench", merged)
     start = time.perf_counter()
@@ -99,7 +102,33 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
         "append_s": append_s,
         "fetch_shard_s": fetch_shard_s,
         "merge_s": merge_s,
+        "frames_rate": frames_rate,
+        "shards_rate": shards_rate,
     }
+
+
+def two_nodes(suite, ckpt: str, args, base: dict) -> dict:
+    """The same units on a two-node Ray cluster on this machine (`ray.cluster_utils.Cluster`, one CPU per node, so
+    one worker on each): results and shards cross a node boundary."""
+    from ray.cluster_utils import Cluster
+
+    from adademo_lerobot.collectors import ScriptedCollectorConfig
+    from adademo_lerobot.executors import ExecutionArgs, RayArgs, make_executor
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        ray_args = RayArgs(address=cluster.address, num_workers=2)
+        ray = make_executor(
+            ExecutionArgs(torch_threads=1, executor="ray", ray=ray_args), suite, ScriptedCollectorConfig(), 10
+        )
+        result = run_units(ray, suite, ckpt, args.episodes, args.demos, seed=1)
+        assert result["outcomes"] == base["outcomes"] and result["demos"] == base["demos"], "results differ"
+        ray.close()
+    finally:
+        cluster.shutdown()
+    return result
 
 
 def main() -> None:
@@ -136,8 +165,9 @@ def main() -> None:
             )
             rows.append(("ray", workers, result))
             if workers == 2:
-                driver = driver_costs(suite, ray, tmp, args.demos)
+                driver = driver_costs(suite, ray, tmp, 4 * args.demos)
             ray.close()
+        rows.append(("ray, 2 nodes", 2, two_nodes(suite, ckpt, args, base)))
 
     episodes = len(base["outcomes"])
     lines = [
@@ -193,6 +223,14 @@ def main() -> None:
         f"{1 / per_demo_merge_s / demos_per_s:.0f} such workers (appending on the driver: "
         f"{1 / per_demo_append_s / demos_per_s:.1f}); each worker then also spends the time to write its shards "
         "(benchmarks/results/shard_merge.md). Evaluation-only work (a journal line per episode) scales much further.",
+        "",
+        f"The workers' side, the same 2 workers collecting {4 * args.demos} push-v3 demonstrations (submit to all "
+        f"ready): {driver['frames_rate']:.1f} demonstrations/s when the frames come back to the driver, "
+        f"{driver['shards_rate']:.1f}/s when each worker also writes its shard: the write the driver no longer does "
+        "is paid on the workers, in parallel.",
+        "",
+        "`ray, 2 nodes`: a two-node Ray cluster on this machine (`ray.cluster_utils.Cluster`, one CPU per node, one "
+        "worker on each), so results and shards cross a node boundary; same results as local.",
     ]
     (RESULTS / "loop_speed.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -143,3 +143,85 @@ def lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, te
     assert sorted({r["round"] for r in read_ledger(root)}) == [1]
     run_cli("adademo-expand", *expand_args(reference))
     same_round(reference, root, 1)
+
+
+@pytest.mark.slow
+def test_a_lost_worker_node_of_a_two_node_cluster_ends_the_command_and_the_same_command_finishes_the_round(
+    reach_push_dataset, act_run, tmp_path
+):
+    """Two Ray nodes on this machine (one CPU each, one actor on each): shards are written on both nodes and merged
+    by the driver; the worker node is then removed mid-round (its raylet and actor killed)."""
+    from ray.cluster_utils import Cluster
+
+    ckpt = act_run / "checkpoints" / "last" / "pretrained_model"
+    root, reference = tmp_path / "two-nodes", tmp_path / "reference"
+    shutil.copytree(reach_push_dataset, root)
+    shutil.copytree(reach_push_dataset, reference)
+    args = [
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={root}",
+        f"--policy.path={ckpt}",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=2",
+        "--strategy.max_demos_per_task=6",
+        "--eval.batch_size=3",
+        "--commit_every=1",
+    ]
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        worker_node = cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        ray_args = ["--executor=ray", f"--ray.address={cluster.address}", "--ray.num_workers=2"]
+        episodes_dir = root / "meta" / "episodes"
+        files_before = len(list(episodes_dir.rglob("*.parquet")))
+        before = read_episode_metadata(root)
+        stderr_path = tmp_path / "stderr.txt"
+        with stderr_path.open("w") as stderr:
+            proc = subprocess.Popen(
+                [str(BIN / "adademo-expand"), *args, *ray_args], stdout=subprocess.DEVNULL, stderr=stderr
+            )
+            try:
+                deadline = time.time() + 300
+                # Two commits merged (shards from both nodes) while the actors still have the round's work.
+                while len(list(episodes_dir.rglob("*.parquet"))) < files_before + 2:
+                    assert time.time() < deadline and proc.poll() is None, (
+                        "expand ended before the node was lost"
+                    )
+                    time.sleep(0.05)
+                removed_at = time.time()
+                cluster.remove_node(worker_node)
+                proc.wait(timeout=120)
+                took = time.time() - removed_at
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+        err = stderr_path.read_text()
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert proc.returncode == 1, err[-3000:]
+        assert took < 30, f"the command took {took:.1f} s to end after the node was lost"
+        assert lines[-1].startswith(
+            "error: lost the Ray cluster (its alive nodes have room for 1 of the 2"
+        ), err[-3000:]
+        assert "run the same command" in lines[-1] and "Traceback" not in err
+
+        # The dataset is as the last commit left it, and stock LeRobot reads every episode.
+        assert not (root / TXN_FILE).exists()
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        committed = read_episode_metadata(root)
+        assert LeRobotDataset("local/demo", root=root).num_episodes == len(committed) > len(before)
+
+        # With a node back, the same command finishes the round as an untouched local round does.
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        rerun = subprocess.run(
+            [str(BIN / "adademo-expand"), *args, *ray_args], capture_output=True, text=True, timeout=600
+        )
+        assert rerun.returncode == 0, rerun.stderr[-3000:]
+        assert "written by the Ray workers, merged here" in rerun.stdout
+    finally:
+        cluster.shutdown()
+    assert not root.with_name(f".{root.name}.adademo-shards").exists()
+    run_cli("adademo-expand", *[a.replace(str(root), str(reference)) for a in args])
+    same_round(reference, root, 1)
