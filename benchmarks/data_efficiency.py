@@ -414,6 +414,7 @@ TITLES = {
     "data_efficiency": "Data efficiency on MetaWorld: Uniform, AdaDemo, AdaDemo + tempered sampler, budgeted",
     "corrections": "Corrections from the point of failure on MetaWorld: takeover arms against Uniform and budgeted",
     "mt10": "Data efficiency on MetaWorld MT10: Uniform, AdaDemo, budgeted, budgeted + takeover corrections",
+    "mt10_cost": "MetaWorld MT10, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
 }
 TAKEOVER_ARMS = {
     "budgeted_takeover",

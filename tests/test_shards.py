@@ -115,3 +115,31 @@ def test_a_merge_that_cannot_finish_changes_nothing(tmp_path):
     with pytest.raises(AdaDemoError, match="which this machine cannot see: .*--ray.worker_writes=false"):
         merge_into(DemoDataset.open("local/x", root), shards, 1, "budgeted", "scripted")
     assert file_digests(root) == before
+
+
+def test_a_state_shard_is_what_lerobots_writer_writes(tmp_path):
+    """State shards are written without LeRobot's per-episode dataset (a quarter of the worker's time): the data
+    file (schema and its metadata included), the episode row and the stats must be exactly LeRobot's, a
+    correction's provenance too."""
+    from adademo_lerobot.dataset.shards import _write_with_lerobot
+
+    suite = MetaWorldSuiteConfig(tasks="reach-v3,push-v3").build()
+    demos = demos_of(suite, 2)
+    demos[1].is_correction, demos[1].start_step = True, 5
+    for demo in demos:
+        ours = write_shard(tmp_path / "ours", suite, demo)
+        lerobots = _write_with_lerobot(tmp_path / "lerobot" / str(demo.seed), suite, demo)
+        assert Path(ours.path).parent == tmp_path / "ours" and not list((tmp_path / "ours").glob(".*"))
+        assert ours.row.keys() == lerobots.row.keys()
+        for key, value in lerobots.row.items():
+            np.testing.assert_array_equal(np.asarray(ours.row[key]), np.asarray(value), err_msg=key)
+        assert json.dumps(ours.stats, sort_keys=True) == json.dumps(lerobots.stats, sort_keys=True)
+        a, b = (pq.read_table(next(Path(s.path).rglob("data/*/*.parquet"))) for s in (ours, lerobots))
+        assert a.schema.equals(b.schema, check_metadata=True) and a.equals(b)
+        assert (ours.task, ours.seed, ours.num_frames, ours.start_step, ours.is_correction) == (
+            lerobots.task,
+            lerobots.seed,
+            lerobots.num_frames,
+            lerobots.start_step,
+            lerobots.is_correction,
+        )

@@ -12,11 +12,13 @@ backs up, so a failed or killed merge rolls back like any append.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -24,6 +26,7 @@ import pyarrow.parquet as pq
 from adademo_lerobot.core.episodes import Demonstration
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import atomic_write_json
+from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.layout import COL_COLLECTOR, COL_ROUND, COL_SOURCE, CORRECTION_SOURCE
 
@@ -67,13 +70,81 @@ def remove_shards(shards: list[Shard]) -> None:
 
 def write_shard(folder: Path, suite, demo: Demonstration) -> Shard:
     """Write `demo` as a one-episode dataset under `folder` (on the worker that collected it)."""
+    path = Path(folder) / f"{demo.task}-{demo.seed}-{demo.start_step}-{uuid.uuid4().hex[:12]}"
+    features = dataset_features(suite)
+    if any(ft["dtype"] in ("video", "image") for ft in features.values()):
+        return _write_with_lerobot(path, suite, demo)
+    return _write_frames(path, suite, demo, features)
+
+
+def _write_with_lerobot(path: Path, suite, demo: Demonstration) -> Shard:
+    """A shard written by LeRobot's own episode writer (camera frames are encoded there)."""
     from adademo_lerobot.dataset.store import DemoDataset
 
-    path = Path(folder) / f"{demo.task}-{demo.seed}-{demo.start_step}-{uuid.uuid4().hex[:12]}"
     # Round, source and collector are the commit's (set when merged); the shard keeps the rest of the row.
     DemoDataset(SHARD_REPO_ID, path, suite.config).append(suite, [demo], 0, "shard", "")
     row = pq.read_table(_the_one(path, "meta/episodes/chunk-*/file-*.parquet")).to_pylist()[0]
     stats = json.loads((path / "meta" / "stats.json").read_text())
+    return _shard(path, demo, row, stats)
+
+
+def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Shard:
+    """A shard of state frames: only the data file the merge reads, its rows and stats computed as LeRobot's writer
+    computes them (its stats, schema and row layout; checked equal in tests/test_shards.py), without building a
+    dataset per episode, which cost the worker ~3x more (benchmarks/results/shard_merge.md)."""
+    from lerobot.datasets.compute_stats import compute_episode_stats
+    from lerobot.datasets.feature_utils import get_hf_features_from_features
+    from lerobot.datasets.utils import DEFAULT_DATA_PATH, serialize_dict
+    from lerobot.utils.constants import DEFAULT_FEATURES
+    from lerobot.utils.utils import flatten_dict
+
+    from adademo_lerobot.dataset.store import provenance_columns
+
+    features = {**features, **DEFAULT_FEATURES}  # LeRobot's order: ours, then its own
+    n, steps = len(demo.frames), np.arange(len(demo.frames))
+    # The episode buffer as LeRobot's writer holds it when it computes an episode's stats.
+    episode = {
+        key: np.stack([f[key] for f in demo.frames]) for key in features if key not in DEFAULT_FEATURES
+    }
+    episode |= {
+        "timestamp": steps / suite.fps,
+        "frame_index": steps,
+        "episode_index": np.zeros(n, np.int64),
+        "index": steps,
+        "task_index": np.zeros(n, np.int64),
+    }
+    stats = compute_episode_stats(episode, features)
+    schema = get_hf_features_from_features(features).arrow_schema
+    table = pa.Table.from_arrays([_column(episode[f.name], f.type) for f in schema], schema=schema)
+    partial = path.with_name(f".{path.name}.partial")  # whole or absent: renamed into place once written
+    data = partial / DEFAULT_DATA_PATH.format(chunk_index=0, file_index=0)
+    data.parent.mkdir(parents=True)
+    pq.write_table(table, data)
+    os.replace(partial, path)
+    row = {
+        "episode_index": 0,
+        "tasks": [demo.task],
+        "length": n,
+        "data/chunk_index": 0,
+        "data/file_index": 0,
+        "dataset_from_index": 0,
+        "dataset_to_index": n,
+        "meta/episodes/chunk_index": 0,
+        "meta/episodes/file_index": 0,
+        **{k: np.asarray(v).tolist() for k, v in flatten_dict({"stats": stats}).items()},
+        **provenance_columns(demo, 0, "shard", "", suite.name),
+    }
+    return _shard(path, demo, row, serialize_dict(stats))
+
+
+def _column(values: np.ndarray, kind: pa.DataType) -> pa.Array:
+    if pa.types.is_fixed_size_list(kind) or pa.types.is_list(kind):
+        flat = pa.array(values.reshape(len(values), -1).ravel()).cast(kind.value_type)
+        return pa.FixedSizeListArray.from_arrays(flat, values.shape[1]).cast(kind)
+    return pa.array(values).cast(kind)
+
+
+def _shard(path: Path, demo: Demonstration, row: dict, stats: dict) -> Shard:
     return Shard(
         str(path),
         demo.task,

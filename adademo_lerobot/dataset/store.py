@@ -312,6 +312,26 @@ def _no_image_embedding_without_images():
     return temporarily_set(dataset_writer, "embed_images", embed_images)
 
 
+def provenance_columns(
+    demo: Demonstration, round_index: int, source: str, collector: str, producer: str
+) -> dict:
+    """Our columns of a demonstration's episode row (`dataset/layout.py`)."""
+    return {
+        COL_INITIAL_STATE: np.asarray(demo.initial_state, dtype=np.float64).tolist(),
+        COL_SEED: int(demo.seed),
+        COL_ROUND: int(round_index),
+        COL_SOURCE: CORRECTION_SOURCE if demo.is_correction else source,
+        COL_COLLECTOR: collector,
+        COL_SUITE: producer,
+        COL_START_STEP: int(demo.start_step),
+        # Never an empty list: LeRobot's writer would type a batch of those as list<null>, which stock LeRobot
+        # then cannot load beside files of list<double>.
+        COL_START_STATE: np.asarray(
+            demo.initial_state if demo.start_state is None else demo.start_state, np.float64
+        ).tolist(),
+    }
+
+
 class DemoDataset:
     """Create or append to an adademo LeRobot dataset; every append is one crash-safe transaction."""
 
@@ -491,20 +511,7 @@ class DemoDataset:
                     kept = {k: v for k, v in frame.items() if k not in unrecorded} if unrecorded else frame
                     dataset.add_frame({**carried, **kept, "task": demo.task})
                 indices.append(dataset.meta.total_episodes)
-                columns = {
-                    COL_INITIAL_STATE: np.asarray(demo.initial_state, dtype=np.float64).tolist(),
-                    COL_SEED: int(demo.seed),
-                    COL_ROUND: int(round_index),
-                    COL_SOURCE: CORRECTION_SOURCE if demo.is_correction else source,
-                    COL_COLLECTOR: collector,
-                    COL_SUITE: producer,
-                    COL_START_STEP: int(demo.start_step),
-                    # Never an empty list: LeRobot's writer would type a batch of those as list<null>, which
-                    # stock LeRobot then cannot load beside files of list<double>.
-                    COL_START_STATE: np.asarray(
-                        demo.initial_state if demo.start_state is None else demo.start_state, np.float64
-                    ).tolist(),
-                }
+                columns = provenance_columns(demo, round_index, source, collector, producer)
                 with _saving_extra_columns(dataset, columns):
                     dataset.save_episode()
             dataset.finalize()
