@@ -19,7 +19,7 @@ from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.dataset.shards import merge_into, write_shard
+from adademo_lerobot.dataset.shards import merge_into, read_frames, write_shard
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
@@ -71,6 +71,18 @@ def test_merged_shards_are_the_appended_demonstrations(tmp_path):
         for x, y in zip(ea[col], em[col], strict=True):
             np.testing.assert_array_equal(x, y)
     assert em["adademo/source"].iloc[-1] == "correction" and em["adademo/start_step"].iloc[-1] == 3
+    # Every episode's own stats (LeRobot's `stats/<feature>/<stat>` columns), re-indexed ones included (up to
+    # float noise: LeRobot's quantile estimate of a column of zeros is 4e-16, not 0).
+    ra, rm = (
+        pd.concat(pq.read_table(f).to_pandas() for f in sorted((r / "meta" / "episodes").rglob("*.parquet")))
+        for r in (appended, merged)
+    )
+    stat_columns = [c for c in ra.columns if c.startswith("stats/")]
+    assert stat_columns and set(stat_columns) == {c for c in rm.columns if c.startswith("stats/")}
+    for col in stat_columns:
+        np.testing.assert_allclose(
+            np.stack(ra[col].to_numpy()), np.stack(rm[col].to_numpy()), atol=1e-9, err_msg=col
+        )
     fa, fm = frames(appended), frames(merged)
     for col in fa.columns:
         np.testing.assert_array_equal(np.stack(fa[col].to_numpy()), np.stack(fm[col].to_numpy()), err_msg=col)
@@ -118,9 +130,9 @@ def test_a_merge_that_cannot_finish_changes_nothing(tmp_path):
 
 
 def test_a_state_shard_is_what_lerobots_writer_writes(tmp_path):
-    """State shards are written without LeRobot's per-episode dataset (a quarter of the worker's time): the data
-    file (schema and its metadata included), the episode row and the stats must be exactly LeRobot's, a
-    correction's provenance too."""
+    """State shards are written without LeRobot's per-episode dataset (a quarter of the worker's time), their
+    frames as an Arrow file: the table (schema and its metadata included), the episode row and the stats must be
+    exactly what LeRobot's writer gives, a correction's provenance too."""
     from adademo_lerobot.dataset.shards import _write_with_lerobot
 
     suite = MetaWorldSuiteConfig(tasks="reach-v3,push-v3").build()
@@ -133,8 +145,13 @@ def test_a_state_shard_is_what_lerobots_writer_writes(tmp_path):
         assert ours.row.keys() == lerobots.row.keys()
         for key, value in lerobots.row.items():
             np.testing.assert_array_equal(np.asarray(ours.row[key]), np.asarray(value), err_msg=key)
-        assert json.dumps(ours.stats, sort_keys=True) == json.dumps(lerobots.stats, sort_keys=True)
-        a, b = (pq.read_table(next(Path(s.path).rglob("data/*/*.parquet"))) for s in (ours, lerobots))
+        assert ours.stats.keys() == lerobots.stats.keys()
+        for key, stats in lerobots.stats.items():
+            assert ours.stats[key].keys() == stats.keys()
+            for name, value in stats.items():
+                np.testing.assert_array_equal(ours.stats[key][name], value, err_msg=f"{key} {name}")
+        a, b = read_frames(ours), read_frames(lerobots)
+        assert b.equals(pq.read_table(next(Path(lerobots.path).rglob("data/*/*.parquet"))))
         assert a.schema.equals(b.schema, check_metadata=True) and a.equals(b)
         assert (ours.task, ours.seed, ours.num_frames, ours.start_step, ours.is_correction) == (
             lerobots.task,

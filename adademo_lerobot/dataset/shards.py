@@ -1,12 +1,14 @@
-"""Episodes written where they are collected: a worker writes each demonstration it collects as a one-episode
-LeRobot dataset (a shard) in a folder every node can reach, and a commit merges finished shards into the dataset
-with LeRobot's own aggregation steps (`lerobot.datasets.aggregate`: parquet rows re-indexed, videos remuxed, never
-re-encoded; episode rows, tasks, info and stats updated). Frames never travel through the driver.
+"""Episodes written where they are collected: a worker writes each demonstration it collects as a shard in a folder
+every node can reach, and a commit merges finished shards into the dataset with LeRobot's own writers and stats
+aggregation (parquet rows re-indexed, videos remuxed, never re-encoded; episode rows, tasks, info and stats
+updated). Frames never travel through the driver. A shard of state frames is the episode's table as an Arrow file,
+with its episode row and stats computed as LeRobot's writer computes them; a shard with a camera is a one-episode
+LeRobot dataset (its writer encodes the video).
 
-A shard is whole or absent: it is built in a sibling folder and renamed into place (`DemoDataset`'s creating
-path), so a worker killed mid-shard leaves only a `.*.adademo-creating` folder, which nothing merges. The merge
-runs inside the dataset's write transaction (`dataset/store.py`): it only creates files, and rewrites the three it
-backs up, so a failed or killed merge rolls back like any append.
+A shard is whole or absent: it is built in a sibling folder and renamed into place, so a worker killed mid-shard
+leaves only a hidden `.*.partial` or `.*.adademo-creating` folder, which nothing merges. The merge runs inside the
+dataset's write transaction (`dataset/store.py`): it only creates files, and rewrites the three it backs up, so a
+failed or killed merge rolls back like any append.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.layout import COL_COLLECTOR, COL_ROUND, COL_SOURCE, CORRECTION_SOURCE
 
 SHARD_REPO_ID = "local/adademo-shard"
+FRAMES_FILE = "frames.arrow"
 
 
 @dataclass
@@ -44,7 +47,8 @@ class Shard:
     start_step: int
     is_correction: bool
     row: dict  # its meta/episodes row, per-episode stats included
-    stats: dict  # its meta/stats.json
+    stats: dict  # its episode's stats (numpy arrays, as LeRobot's `aggregate_stats` takes them)
+    data_file: str  # its frames, relative to `path`: LeRobot's data file, or an Arrow file of the same table
 
 
 def shard_folder(root: Path, round_index: int) -> Path:
@@ -83,18 +87,21 @@ def _write_with_lerobot(path: Path, suite, demo: Demonstration) -> Shard:
 
     # Round, source and collector are the commit's (set when merged); the shard keeps the rest of the row.
     DemoDataset(SHARD_REPO_ID, path, suite.config).append(suite, [demo], 0, "shard", "")
+    from lerobot.datasets.io_utils import cast_stats_to_numpy
+
     row = pq.read_table(_the_one(path, "meta/episodes/chunk-*/file-*.parquet")).to_pylist()[0]
-    stats = json.loads((path / "meta" / "stats.json").read_text())
-    return _shard(path, demo, row, stats)
+    stats = cast_stats_to_numpy(json.loads((path / "meta" / "stats.json").read_text()))
+    data = _the_one(path, "data/chunk-*/file-*.parquet").relative_to(path)
+    return _shard(path, demo, row, stats, str(data))
 
 
 def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Shard:
-    """A shard of state frames: only the data file the merge reads, its rows and stats computed as LeRobot's writer
-    computes them (its stats, schema and row layout; checked equal in tests/test_shards.py), without building a
-    dataset per episode, which cost the worker ~3x more (benchmarks/results/shard_merge.md)."""
+    """A shard of state frames: only the table the merge reads, with its episode row and stats computed as
+    LeRobot's writer computes them (its stats, schema and row layout; checked equal in tests/test_shards.py),
+    without building a dataset per episode, which cost the worker ~4x more (benchmarks/results/shard_merge.md).
+    The table is an Arrow file: the merge reads it in a fraction of a parquet file's open and decode."""
     from lerobot.datasets.compute_stats import compute_episode_stats
     from lerobot.datasets.feature_utils import get_hf_features_from_features
-    from lerobot.datasets.utils import DEFAULT_DATA_PATH, serialize_dict
     from lerobot.utils.constants import DEFAULT_FEATURES
     from lerobot.utils.utils import flatten_dict
 
@@ -114,12 +121,12 @@ def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Sha
         "task_index": np.zeros(n, np.int64),
     }
     stats = compute_episode_stats(episode, features)
-    schema = get_hf_features_from_features(features).arrow_schema
+    schema = _as_parquet_reads_it(get_hf_features_from_features(features).arrow_schema)
     table = pa.Table.from_arrays([_column(episode[f.name], f.type) for f in schema], schema=schema)
     partial = path.with_name(f".{path.name}.partial")  # whole or absent: renamed into place once written
-    data = partial / DEFAULT_DATA_PATH.format(chunk_index=0, file_index=0)
-    data.parent.mkdir(parents=True)
-    pq.write_table(table, data)
+    partial.mkdir(parents=True)
+    with pa.OSFile(str(partial / FRAMES_FILE), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
+        writer.write_table(table)
     os.replace(partial, path)
     row = {
         "episode_index": 0,
@@ -134,7 +141,18 @@ def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Sha
         **{k: np.asarray(v).tolist() for k, v in flatten_dict({"stats": stats}).items()},
         **provenance_columns(demo, 0, "shard", "", suite.name),
     }
-    return _shard(path, demo, row, serialize_dict(stats))
+    return _shard(path, demo, row, stats, FRAMES_FILE)
+
+
+def _as_parquet_reads_it(schema: pa.Schema) -> pa.Schema:
+    """`schema` as a table read from LeRobot's parquet files has it (lists' items named `element`)."""
+    fields = [
+        pa.field(f.name, pa.list_(pa.field("element", f.type.value_type), f.type.list_size))
+        if pa.types.is_fixed_size_list(f.type)
+        else f
+        for f in schema
+    ]
+    return pa.schema(fields, metadata=schema.metadata)
 
 
 def _column(values: np.ndarray, kind: pa.DataType) -> pa.Array:
@@ -144,7 +162,7 @@ def _column(values: np.ndarray, kind: pa.DataType) -> pa.Array:
     return pa.array(values).cast(kind)
 
 
-def _shard(path: Path, demo: Demonstration, row: dict, stats: dict) -> Shard:
+def _shard(path: Path, demo: Demonstration, row: dict, stats: dict, data_file: str) -> Shard:
     return Shard(
         str(path),
         demo.task,
@@ -154,7 +172,21 @@ def _shard(path: Path, demo: Demonstration, row: dict, stats: dict) -> Shard:
         demo.is_correction,
         row,
         stats,
+        data_file,
     )
+
+
+def read_frames(shard: Shard) -> pa.Table:
+    """A finished shard's frames, as LeRobot's data file holds them (schema metadata included)."""
+    path = Path(shard.path) / shard.data_file
+    if not path.is_file():
+        _the_one(
+            Path(shard.path), shard.data_file
+        )  # says which: a folder this machine cannot see, or not whole
+    if path.suffix == ".arrow":
+        with pa.OSFile(str(path)) as source:
+            return pa.ipc.open_file(source).read_all()
+    return pq.ParquetFile(path).read()
 
 
 def _the_one(folder: Path, pattern: str) -> Path:
@@ -172,18 +204,13 @@ def _the_one(folder: Path, pattern: str) -> Path:
     return files[0]
 
 
-def _shifted(row: dict, column: str, by: int | None = None, value: int | None = None) -> None:
-    """A bookkeeping column's per-episode stats in `row` after it was re-indexed: shifted `by`, or all `value`
-    (a count or a spread does not change)."""
-    for name in [c for c in row if c.startswith(f"stats/{column}/")]:
-        if name.rsplit("/", 1)[1] not in ("count", "std"):
-            row[name] = [value if value is not None else x + by for x in row[name]]
-
-
-def _stats_shifted(stats: dict, column: str, by: int | None = None, value: int | None = None) -> None:
-    for stat, v in stats[column].items():
+def _reindexed(row: dict, stats: dict, column: str, by: int | None = None, value: int | None = None) -> None:
+    """A bookkeeping column's episode stats, in the shard's stats and its row, after the column was re-indexed:
+    shifted `by`, or all `value` (a count or a spread does not change)."""
+    for stat, values in stats[column].items():
         if stat not in ("count", "std"):
-            stats[column][stat] = [value if value is not None else x + by for x in v]
+            stats[column][stat] = np.asarray([value if value is not None else x + by for x in values])
+            row[f"stats/{column}/{stat}"] = stats[column][stat].tolist()
 
 
 def merge_into(dataset, shards: list[Shard], round_index: int, source: str, collector: str) -> list[int]:
@@ -202,7 +229,6 @@ def merge_shards(root: Path, shards: list[Shard], round_index: int, source: str,
     write transaction (it creates files and rewrites info, stats and tasks)."""
     from lerobot.datasets.compute_stats import aggregate_stats
     from lerobot.datasets.io_utils import (
-        cast_stats_to_numpy,
         load_stats,
         write_stats,
         write_table_one_row_group_per_episode,
@@ -230,7 +256,7 @@ def merge_shards(root: Path, shards: list[Shard], round_index: int, source: str,
     data_tables, rows, stats, offsets = [], [], [load_stats(root)], dict.fromkeys(video_keys, 0.0)
     for k, shard in enumerate(shards):
         folder = Path(shard.path)
-        data = pq.ParquetFile(_the_one(folder, "data/chunk-*/file-*.parquet")).read()
+        data = read_frames(shard)
         row, shard_stats = dict(shard.row), {c: dict(v) for c, v in shard.stats.items()}
         task = row["tasks"][0]
         if task not in tasks.index:
@@ -263,15 +289,12 @@ def merge_shards(root: Path, shards: list[Shard], round_index: int, source: str,
             }
             # The next episode starts where this file ends, as LeRobot's aggregation places it.
             offsets[key] += get_video_duration_in_s(_the_one(folder, f"videos/{key}/chunk-*/file-*.mp4"))
-        _shifted(row, "episode_index", value=episode)
-        _shifted(row, "index", by=frames)
-        _shifted(row, "task_index", value=task_index)
-        _stats_shifted(shard_stats, "episode_index", value=episode)
-        _stats_shifted(shard_stats, "index", by=frames)
-        _stats_shifted(shard_stats, "task_index", value=task_index)
+        _reindexed(row, shard_stats, "episode_index", value=episode)
+        _reindexed(row, shard_stats, "index", by=frames)
+        _reindexed(row, shard_stats, "task_index", value=task_index)
         data_tables.append(data)
         rows.append(row)
-        stats.append(cast_stats_to_numpy(shard_stats))
+        stats.append(shard_stats)
         frames += n
 
     def path(template: str, at: tuple[int, int], **keys) -> Path:
