@@ -112,30 +112,40 @@ def two_nodes(suite, ckpt: str, args, base: dict) -> dict:
     one worker on each): results and shards cross a node boundary."""
     from ray.cluster_utils import Cluster
 
-    from adademo_lerobot.collectors import ScriptedCollectorConfig
-    from adademo_lerobot.executors import ExecutionArgs, RayArgs, make_executor
+    from adademo_lerobot.executors import RayArgs
 
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     try:
         cluster.add_node(num_cpus=1)
         cluster.wait_for_nodes()
-        ray_args = RayArgs(address=cluster.address, num_workers=2)
-        ray = make_executor(
-            ExecutionArgs(torch_threads=1, executor="ray", ray=ray_args), suite, ScriptedCollectorConfig(), 10
-        )
-        result = run_units(ray, suite, ckpt, args.episodes, args.demos, seed=1)
-        assert result["outcomes"] == base["outcomes"] and result["demos"] == base["demos"], "results differ"
+        ray, _, result = on_ray(suite, ckpt, args, base, RayArgs(address=cluster.address, num_workers=2))
         ray.close()
     finally:
         cluster.shutdown()
     return result
 
 
+def on_ray(suite, ckpt: str, args, base: dict, ray_args) -> tuple:
+    """A Ray executor with the policy loaded (left open), its fixed cost in seconds (start Ray or connect, create
+    the actors, load the policy), and the units' results, checked equal to the local ones."""
+    from adademo_lerobot.collectors import ScriptedCollectorConfig
+    from adademo_lerobot.executors import ExecutionArgs, make_executor
+
+    start = time.perf_counter()
+    execution = ExecutionArgs(torch_threads=1, executor="ray", ray=ray_args)
+    ray = make_executor(execution, suite, ScriptedCollectorConfig(), 10)
+    ray.use_policy(ckpt)
+    fixed = time.perf_counter() - start
+    result = run_units(ray, suite, ckpt, args.episodes, args.demos, seed=1)
+    assert result["outcomes"] == base["outcomes"] and result["demos"] == base["demos"], "results differ"
+    return ray, fixed, result
+
+
 def main() -> None:
     args = loop_speed_args(40, "fixed-set episodes per task", "expert episodes per task")
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # as the commands do: no network
     from adademo_lerobot.collectors import ScriptedCollectorConfig
-    from adademo_lerobot.executors import ExecutionArgs, LocalExecutor, RayArgs, make_executor
+    from adademo_lerobot.executors import LocalExecutor, RayArgs
     from adademo_lerobot.suites import MetaWorldSuiteConfig, make_suite
 
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS), max_episode_steps=200))
@@ -154,15 +164,7 @@ def main() -> None:
         rows = [("local", 1, base)]
         fixed = {}
         for workers in (1, 2):
-            start = time.perf_counter()
-            execution = ExecutionArgs(torch_threads=1, executor="ray", ray=RayArgs(num_workers=workers))
-            ray = make_executor(execution, suite, ScriptedCollectorConfig(), 10)
-            ray.use_policy(ckpt)
-            fixed[workers] = time.perf_counter() - start
-            result = run_units(ray, suite, ckpt, args.episodes, args.demos, seed=1)
-            assert result["outcomes"] == base["outcomes"] and result["demos"] == base["demos"], (
-                "results differ"
-            )
+            ray, fixed[workers], result = on_ray(suite, ckpt, args, base, RayArgs(num_workers=workers))
             rows.append(("ray", workers, result))
             if workers == 2:
                 driver = driver_costs(suite, ray, tmp, 4 * args.demos)

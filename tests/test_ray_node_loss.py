@@ -57,6 +57,21 @@ def kill_node(command: psutil.Process, temp_dir: str) -> int:
     return len(killed)
 
 
+def expand_args(dataset: Path, ckpt: Path) -> list[str]:
+    """A round of adademo-expand on `dataset` that commits after every demonstration (a loss mid-round finds
+    committed and uncommitted work)."""
+    return [
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={dataset}",
+        f"--policy.path={ckpt}",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=2",
+        "--strategy.max_demos_per_task=6",
+        "--eval.batch_size=3",
+        "--commit_every=1",
+    ]
+
+
 @pytest.mark.slow
 def test_a_lost_ray_node_ends_the_command_in_seconds_and_the_same_command_finishes_the_round(
     reach_push_dataset, act_run, tmp_path
@@ -75,19 +90,7 @@ def lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, te
     shutil.copytree(reach_push_dataset, root)
     shutil.copytree(reach_push_dataset, reference)
 
-    def expand_args(dataset: Path) -> list[str]:
-        return [
-            "--dataset.repo_id=local/demo",
-            f"--dataset.root={dataset}",
-            f"--policy.path={ckpt}",
-            "--strategy.type=adademo",
-            "--strategy.target_successes=2",
-            "--strategy.max_demos_per_task=6",
-            "--eval.batch_size=3",
-            "--commit_every=1",
-        ]
-
-    args = [*expand_args(root), "--executor=ray", "--ray.num_workers=2"]
+    args = [*expand_args(root, ckpt), "--executor=ray", "--ray.num_workers=2"]
     env = {**os.environ, "RAY_TMPDIR": temp_dir, "RAY_USAGE_STATS_ENABLED": "0"}
     episodes_dir = root / "meta" / "episodes"
     files_before = len(list(episodes_dir.rglob("*.parquet")))
@@ -141,13 +144,13 @@ def lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, te
     new = eps[eps["adademo/round"] == 1]
     assert not new.duplicated(["task", "adademo/seed"]).any()  # no initial state twice
     assert sorted({r["round"] for r in read_ledger(root)}) == [1]
-    run_cli("adademo-expand", *expand_args(reference))
+    run_cli("adademo-expand", *expand_args(reference, ckpt))
     same_round(reference, root, 1)
 
 
 @pytest.mark.slow
 def test_a_lost_worker_node_of_a_two_node_cluster_ends_the_command_and_the_same_command_finishes_the_round(
-    reach_push_dataset, act_run, tmp_path
+    reach_push_dataset, act_run, tmp_path, monkeypatch
 ):
     """Two Ray nodes on this machine (one CPU each, one actor on each): shards are written on both nodes and merged
     by the driver; the worker node is then removed mid-round (its raylet and actor killed)."""
@@ -157,17 +160,8 @@ def test_a_lost_worker_node_of_a_two_node_cluster_ends_the_command_and_the_same_
     root, reference = tmp_path / "two-nodes", tmp_path / "reference"
     shutil.copytree(reach_push_dataset, root)
     shutil.copytree(reach_push_dataset, reference)
-    args = [
-        "--dataset.repo_id=local/demo",
-        f"--dataset.root={root}",
-        f"--policy.path={ckpt}",
-        "--strategy.type=adademo",
-        "--strategy.target_successes=2",
-        "--strategy.max_demos_per_task=6",
-        "--eval.batch_size=3",
-        "--commit_every=1",
-    ]
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    args = expand_args(root, ckpt)
+    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     try:
         worker_node = cluster.add_node(num_cpus=1)
@@ -223,5 +217,5 @@ def test_a_lost_worker_node_of_a_two_node_cluster_ends_the_command_and_the_same_
     finally:
         cluster.shutdown()
     assert not root.with_name(f".{root.name}.adademo-shards").exists()
-    run_cli("adademo-expand", *[a.replace(str(root), str(reference)) for a in args])
+    run_cli("adademo-expand", *expand_args(reference, ckpt))
     same_round(reference, root, 1)

@@ -73,7 +73,7 @@ def remove_shards(shards: list[Shard]) -> None:
 
 
 def write_shard(folder: Path, suite, demo: Demonstration) -> Shard:
-    """Write `demo` as a one-episode dataset under `folder` (on the worker that collected it)."""
+    """Write `demo` as a shard under `folder` (on the worker that collected it)."""
     path = Path(folder) / f"{demo.task}-{demo.seed}-{demo.start_step}-{uuid.uuid4().hex[:12]}"
     features = dataset_features(suite)
     if any(ft["dtype"] in ("video", "image") for ft in features.values()):
@@ -83,12 +83,12 @@ def write_shard(folder: Path, suite, demo: Demonstration) -> Shard:
 
 def _write_with_lerobot(path: Path, suite, demo: Demonstration) -> Shard:
     """A shard written by LeRobot's own episode writer (camera frames are encoded there)."""
+    from lerobot.datasets.io_utils import cast_stats_to_numpy
+
     from adademo_lerobot.dataset.store import DemoDataset
 
     # Round, source and collector are the commit's (set when merged); the shard keeps the rest of the row.
     DemoDataset(SHARD_REPO_ID, path, suite.config).append(suite, [demo], 0, "shard", "")
-    from lerobot.datasets.io_utils import cast_stats_to_numpy
-
     row = pq.read_table(_the_one(path, "meta/episodes/chunk-*/file-*.parquet")).to_pylist()[0]
     stats = cast_stats_to_numpy(json.loads((path / "meta" / "stats.json").read_text()))
     data = _the_one(path, "data/chunk-*/file-*.parquet").relative_to(path)
@@ -180,9 +180,8 @@ def read_frames(shard: Shard) -> pa.Table:
     """A finished shard's frames, as LeRobot's data file holds them (schema metadata included)."""
     path = Path(shard.path) / shard.data_file
     if not path.is_file():
-        _the_one(
-            Path(shard.path), shard.data_file
-        )  # says which: a folder this machine cannot see, or not whole
+        # Raises, saying which: a folder this machine cannot see, or a shard that is not whole.
+        _the_one(Path(shard.path), shard.data_file)
     if path.suffix == ".arrow":
         with pa.OSFile(str(path)) as source:
             return pa.ipc.open_file(source).read_all()
