@@ -49,7 +49,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from _common import BIN, RESULTS, ROOT, machine_line
+from _common import AVX2_KERNELS, BIN, RESULTS, ROOT, machine_line
 
 from adademo_lerobot.core.tables import table
 
@@ -455,7 +455,16 @@ def main() -> None:
         default="shared",
         help="per_seed: each seed's own fixed evaluation states (--eval.seed=100+seed); shared: eval seed 100's",
     )
+    parser.add_argument(
+        "--cpu_isa",
+        choices=["avx2", "native"],
+        default="avx2",
+        help="avx2 (default): the runs' numeric kernels pinned to AVX2, so that an AVX-512 machine trains the "
+        "same policies as an AVX2 one and summaries of both pair by seed; native: the machine's own",
+    )
     args = parser.parse_args()
+    if args.cpu_isa == "avx2":
+        os.environ.update(AVX2_KERNELS)  # for the runs this driver starts
     SUMMARIES, RECIPE = RESULTS / args.summaries, args.recipe.resolve()
     TEST_STATES[0] = args.test_states
     SUMMARIES.mkdir(parents=True, exist_ok=True)

@@ -69,7 +69,7 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
     written, either as frames appended by the driver or as a shard the worker wrote and the driver merges (both
     committed 10 at a time, as `--commit_every` does by default)."""
     from adademo_lerobot.dataset.ledger import RoundJournal
-    from adademo_lerobot.dataset.shards import merge_into
+    from adademo_lerobot.dataset.shards import ShardMerger
     from adademo_lerobot.dataset.store import DemoDataset
 
     journal = RoundJournal(tmp / "journal", 1)
@@ -90,10 +90,10 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
     executor.shard_folder = str(tmp / "shards")  # the workers write what they collect
     results, fetch_shard_s, shards_rate = fetched(executor, "push-v3", range(7000, 7000 + demos))
     shards = [r.demonstration for r in results if r.demonstration is not None][1:]
-    dataset = DemoDataset.open("local/bench", merged)
+    merger = ShardMerger(DemoDataset.open("local/bench", merged))  # as a round's appender holds one
     start = time.perf_counter()
     for begin in range(0, len(shards), 10):
-        merge_into(dataset, shards[begin : begin + 10], 1, "bench", "metaworld-scripted")
+        merger.merge(shards[begin : begin + 10], 1, "bench", "metaworld-scripted")
     merge_s = (time.perf_counter() - start) / max(len(shards), 1)
     executor.shard_folder = None
     return {

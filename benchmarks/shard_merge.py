@@ -24,7 +24,7 @@ from _common import RESULTS, machine_line
 
 import adademo_lerobot.commands  # noqa: F401  (a program: the GL backend for the camera rows, as the commands')
 
-CONFIGS = [("state", 10), ("state", 50), ("camera 64x64", 10)]
+CONFIGS = [("state", 1), ("state", 10), ("state", 50), ("camera 64x64", 10)]
 
 
 def collect_demos(suite, n: int) -> list:
@@ -41,7 +41,7 @@ def collect_demos(suite, n: int) -> list:
 
 def measure(suite, demos: list, batch: int, tmp: Path) -> dict:
     from adademo_lerobot.dataset.metadata import read_episode_metadata
-    from adademo_lerobot.dataset.shards import merge_into, write_shard
+    from adademo_lerobot.dataset.shards import ShardMerger, write_shard
     from adademo_lerobot.dataset.store import DemoDataset
 
     base, a, b = tmp / "base", tmp / "append", tmp / "merge"
@@ -60,9 +60,9 @@ def measure(suite, demos: list, batch: int, tmp: Path) -> dict:
     shards = [write_shard(tmp / "shards", suite, d) for d in rest]
     worker_s = time.perf_counter() - start
     start = time.perf_counter()
-    dataset = DemoDataset.open("local/x", b)
+    merger = ShardMerger(DemoDataset.open("local/x", b))  # as a round's appender holds one
     for k in range(0, len(shards), batch):
-        merge_into(dataset, shards[k : k + batch], 1, "budgeted", "scripted")
+        merger.merge(shards[k : k + batch], 1, "budgeted", "scripted")
     merge_s = time.perf_counter() - start
 
     ea, eb = read_episode_metadata(a), read_episode_metadata(b)

@@ -167,6 +167,37 @@ def file_digests(root: Path) -> dict[str, str]:
     }
 
 
+def mount_small_disk(path: Path, size: str) -> None:
+    path.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True
+    )
+    if proc.returncode != 0:
+        message = f"cannot mount a small tmpfs here ({proc.stderr.decode().strip()})"
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"CI must run the full-disk tests: {message}")
+        pytest.skip(message)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 1 MiB filesystem (a real full disk: tests mount it as root, as on the project's machines and in CI;
+    elsewhere they are skipped, but not in CI), unmounted afterwards."""
+    disk = tmp_path / "disk"
+    mount_small_disk(disk, "1m")
+    yield disk
+    subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def leave_free(disk: Path, free_bytes: int) -> Path:
+    """Fill `disk` with a file so that about `free_bytes` stay free; returns the file (delete it to free space)."""
+    st = os.statvfs(disk)
+    filler = disk / "filler"
+    with open(filler, "wb") as f:
+        f.write(b"\0" * max(0, st.f_bavail * st.f_frsize - free_bytes))
+    return filler
+
+
 TINY_ACT_POLICY = [
     "--policy.type=act",
     "--policy.dim_model=32",

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import errno
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -20,43 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import BIN, TINY_ACT, file_digests, run_cli
+from conftest import BIN, TINY_ACT, file_digests, leave_free, mount_small_disk, run_cli
 
 from adademo_lerobot.dataset.layout import ADADEMO_DIR, TXN_FILE
 from adademo_lerobot.dataset.ledger import read_ledger
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 
 UNIFORM = ["--strategy.type=uniform", "--strategy.demos_per_task=2"]
-
-
-def mount_small_disk(path: Path, size: str) -> None:
-    path.mkdir(parents=True, exist_ok=True)
-    proc = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True
-    )
-    if proc.returncode != 0:
-        message = f"cannot mount a small tmpfs here ({proc.stderr.decode().strip()})"
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"CI must run the full-disk tests: {message}")
-        pytest.skip(message)
-
-
-@pytest.fixture
-def small_disk(tmp_path):
-    """A 1 MiB filesystem, unmounted afterwards."""
-    disk = tmp_path / "disk"
-    mount_small_disk(disk, "1m")
-    yield disk
-    subprocess.run(["umount", "-l", str(disk)], check=False)
-
-
-def leave_free(disk: Path, free_bytes: int) -> Path:
-    """Fill `disk` with a file so that about `free_bytes` stay free; returns the file (delete it to free space)."""
-    st = os.statvfs(disk)
-    filler = disk / "filler"
-    with open(filler, "wb") as f:
-        f.write(b"\0" * max(0, st.f_bavail * st.f_frsize - free_bytes))
-    return filler
 
 
 def dataset_files(root: Path) -> dict[str, str]:

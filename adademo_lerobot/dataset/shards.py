@@ -46,7 +46,7 @@ class Shard:
     num_frames: int
     start_step: int
     is_correction: bool
-    row: dict  # its meta/episodes row, per-episode stats included
+    row: dict  # its meta/episodes row but its `stats/*` columns (the merge makes them from `stats`)
     stats: dict  # its episode's stats (numpy arrays, as LeRobot's `aggregate_stats` takes them)
     data_file: str  # its frames, relative to `path`: LeRobot's data file, or an Arrow file of the same table
 
@@ -90,6 +90,7 @@ def _write_with_lerobot(path: Path, suite, demo: Demonstration) -> Shard:
     # Round, source and collector are the commit's (set when merged); the shard keeps the rest of the row.
     DemoDataset(SHARD_REPO_ID, path, suite.config).append(suite, [demo], 0, "shard", "")
     row = pq.read_table(_the_one(path, "meta/episodes/chunk-*/file-*.parquet")).to_pylist()[0]
+    row = {k: v for k, v in row.items() if not k.startswith("stats/")}  # the stats travel once, as `stats`
     stats = cast_stats_to_numpy(json.loads((path / "meta" / "stats.json").read_text()))
     data = _the_one(path, "data/chunk-*/file-*.parquet").relative_to(path)
     return _shard(path, demo, row, stats, str(data))
@@ -103,7 +104,6 @@ def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Sha
     from lerobot.datasets.compute_stats import compute_episode_stats
     from lerobot.datasets.feature_utils import get_hf_features_from_features
     from lerobot.utils.constants import DEFAULT_FEATURES
-    from lerobot.utils.utils import flatten_dict
 
     from adademo_lerobot.dataset.store import provenance_columns
 
@@ -138,7 +138,6 @@ def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Sha
         "dataset_to_index": n,
         "meta/episodes/chunk_index": 0,
         "meta/episodes/file_index": 0,
-        **{k: np.asarray(v).tolist() for k, v in flatten_dict({"stats": stats}).items()},
         **provenance_columns(demo, 0, "shard", "", suite.name),
     }
     return _shard(path, demo, row, stats, FRAMES_FILE)
@@ -203,121 +202,205 @@ def _the_one(folder: Path, pattern: str) -> Path:
     return files[0]
 
 
-def _reindexed(row: dict, stats: dict, column: str, by: int | None = None, value: int | None = None) -> None:
-    """A bookkeeping column's episode stats, in the shard's stats and its row, after the column was re-indexed:
-    shifted `by`, or all `value` (a count or a spread does not change)."""
+def _reindexed(stats: dict, column: str, by: int | None = None, value: int | None = None) -> None:
+    """A bookkeeping column's episode stats after the column was re-indexed: shifted `by`, or all `value` (a
+    count or a spread does not change)."""
     for stat, values in stats[column].items():
         if stat not in ("count", "std"):
             stats[column][stat] = np.asarray([value if value is not None else x + by for x in values])
-            row[f"stats/{column}/{stat}"] = stats[column][stat].tolist()
+
+
+def _stats_columns(stats: dict) -> dict:
+    """An episode's stats as LeRobot's `meta/episodes` row holds them (`stats/<feature>/<stat>` columns)."""
+    return {
+        f"stats/{feature}/{stat}": np.asarray(values).tolist()
+        for feature, by_stat in stats.items()
+        for stat, values in by_stat.items()
+    }
+
+
+@dataclass
+class _Cursor:
+    """What a merge needs of the dataset's metadata. A `ShardMerger` keeps it from one merge to the next while
+    nothing else writes the dataset (`meta/info.json`'s inode, mtime and size tell), so that a commit reads only
+    its shards: re-reading it cost ~15 ms a commit, which the per-task commits of a round pay many times."""
+
+    info: dict
+    tasks: pd.DataFrame
+    schema: pa.Schema  # of the `meta/episodes` rows
+    last: dict  # the last episode row's `<file kind>/chunk_index` and `/file_index` columns
+    stats: dict  # meta/stats.json as LeRobot loads it
+    stamp: tuple
+
+    @classmethod
+    def read(cls, root: Path) -> _Cursor:
+        from lerobot.datasets.io_utils import load_stats
+
+        stamp = _stamp(root)
+        last_file = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))[-1]
+        episodes = pq.ParquetFile(last_file)
+        schema = episodes.schema_arrow
+        pointers = [c for c in schema.names if c.endswith(("/chunk_index", "/file_index"))]
+        last = episodes.read_row_group(episodes.num_row_groups - 1, columns=pointers).to_pylist()[-1]
+        tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
+        return cls(read_info(root), tasks, schema, last, load_stats(root), stamp)
+
+    def next_file(self, prefix: str) -> tuple[int, int]:
+        chunk, file = int(self.last[f"{prefix}/chunk_index"]), int(self.last[f"{prefix}/file_index"])
+        return _next_file(chunk, file, int(self.info["chunks_size"]))
+
+
+def _stamp(root: Path) -> tuple:
+    st = os.stat(Path(root) / "meta" / "info.json")
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+class ShardMerger:
+    """Merges finished shards into one `DemoDataset` (it exists, `can_merge`): each `merge` appends the shards'
+    episodes in order, as one transaction, with one new data file, one new episodes file and one new video file
+    per camera (LeRobot's file layout and writers; frames re-indexed, videos remuxed, never re-encoded). Reads
+    each shard's frames once (its episode row and stats came with the `Shard`)."""
+
+    def __init__(self, dataset):
+        self.dataset = dataset
+        self._cursor: _Cursor | None = None
+
+    def merge(self, shards: list[Shard], round_index: int, source: str, collector: str) -> list[int]:
+        """Returns the shards' episode indices."""
+        if not shards:
+            return []
+        root = self.dataset.root
+        cursor = self._cursor
+        if cursor is None or cursor.stamp != _stamp(root):  # first merge, or another write came between
+            cursor = _Cursor.read(root)
+        self._cursor = None  # until this merge has committed
+        merge = _Merge(root, cursor, shards, round_index, source, collector)  # reads; writes nothing yet
+        what = f"{len(shards)} episode{'s' * (len(shards) != 1)}"
+        with self.dataset.writing(what, creates=merge.creates, rewrites=merge.rewrites):
+            merge.write()
+        self._cursor = merge.cursor_after()
+        return merge.episodes
 
 
 def merge_into(dataset, shards: list[Shard], round_index: int, source: str, collector: str) -> list[int]:
-    """Merge finished shards into a `DemoDataset` (it exists, `can_merge`) in one transaction, in order; returns
-    their episode indices."""
-    if not shards:
-        return []
-    with dataset.writing(f"{len(shards)} episode{'s' * (len(shards) != 1)}"):
-        return merge_shards(dataset.root, shards, round_index, source, collector)
+    """One merge of finished shards into a `DemoDataset` (see `ShardMerger`, which keeps the metadata between
+    merges); returns their episode indices."""
+    return ShardMerger(dataset).merge(shards, round_index, source, collector)
 
 
-def merge_shards(root: Path, shards: list[Shard], round_index: int, source: str, collector: str) -> list[int]:
-    """Append the shards' episodes to the dataset at `root`, in order, as one new data file, one new episodes
-    file and one new video file per camera (LeRobot's file layout and writers); returns their episode indices.
-    Reads each shard's frames once (its episode row and stats came with the `Shard`). Call inside the dataset's
-    write transaction (it creates files and rewrites info, stats and tasks)."""
-    from lerobot.datasets.compute_stats import aggregate_stats
-    from lerobot.datasets.io_utils import (
-        load_stats,
-        write_stats,
-        write_table_one_row_group_per_episode,
-    )
-    from lerobot.datasets.utils import DEFAULT_DATA_PATH, DEFAULT_EPISODES_PATH, DEFAULT_VIDEO_PATH
-    from lerobot.datasets.video_utils import concatenate_video_files, get_video_duration_in_s
+class _Merge:
+    """One merge: everything is read and laid out when it is built (a missing shard fails here, before the
+    dataset's write transaction begins); `write` creates the new files and rewrites info and stats (and tasks
+    when a shard brings a new one)."""
 
-    root = Path(root)
-    info = read_info(root)
-    tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
-    last_file = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))[-1]
-    schema = pq.read_schema(last_file)
-    meta = pq.ParquetFile(last_file)
-    last = meta.read_row_group(meta.num_row_groups - 1).to_pylist()[-1]
-    chunk_size = int(info["chunks_size"])
-    first, frames = int(info["total_episodes"]), int(info["total_frames"])
-    video_keys = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
+    def __init__(self, root: Path, cursor: _Cursor, shards: list[Shard], round_index, source, collector):
+        from lerobot.datasets.utils import DEFAULT_DATA_PATH, DEFAULT_EPISODES_PATH, DEFAULT_VIDEO_PATH
+        from lerobot.datasets.video_utils import get_video_duration_in_s
 
-    def next_file(prefix: str) -> tuple[int, int]:
-        return _next_file(int(last[f"{prefix}/chunk_index"]), int(last[f"{prefix}/file_index"]), chunk_size)
-
-    data_at, meta_at = next_file("data"), next_file("meta/episodes")
-    video_at = {key: next_file(f"videos/{key}") for key in video_keys}
-
-    data_tables, rows, stats, offsets = [], [], [load_stats(root)], dict.fromkeys(video_keys, 0.0)
-    for k, shard in enumerate(shards):
-        folder = Path(shard.path)
-        data = read_frames(shard)
-        row, shard_stats = dict(shard.row), {c: dict(v) for c, v in shard.stats.items()}
-        task = row["tasks"][0]
-        if task not in tasks.index:
-            tasks = pd.concat([tasks, pd.DataFrame({"task_index": [len(tasks)]}, index=pd.Index([task]))])
-        task_index, n, episode = int(tasks.loc[task, "task_index"]), data.num_rows, first + k
-        for name, values in (
-            ("episode_index", [episode] * n),
-            ("index", range(frames, frames + n)),
-            ("task_index", [task_index] * n),
-        ):
-            data = data.set_column(data.column_names.index(name), name, pa.array(values, pa.int64()))
-        row |= {
-            "episode_index": episode,
-            "dataset_from_index": frames,
-            "dataset_to_index": frames + n,
-            "data/chunk_index": data_at[0],
-            "data/file_index": data_at[1],
-            "meta/episodes/chunk_index": meta_at[0],
-            "meta/episodes/file_index": meta_at[1],
-            COL_ROUND: round_index,
-            COL_SOURCE: CORRECTION_SOURCE if shard.is_correction else source,
-            COL_COLLECTOR: collector,
-        }
-        for key in video_keys:
+        self.root, self.cursor, self.shards = root, cursor, shards
+        info = cursor.info
+        first, frames = int(info["total_episodes"]), int(info["total_frames"])
+        self.video_keys = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
+        self.data_at, self.meta_at = cursor.next_file("data"), cursor.next_file("meta/episodes")
+        self.video_at = {key: cursor.next_file(f"videos/{key}") for key in self.video_keys}
+        tasks, offsets = cursor.tasks, dict.fromkeys(self.video_keys, 0.0)
+        self.data_tables, self.rows, self.stats = [], [], []
+        for k, shard in enumerate(shards):
+            folder = Path(shard.path)
+            data = read_frames(shard)
+            row, shard_stats = dict(shard.row), {c: dict(v) for c, v in shard.stats.items()}
+            task = row["tasks"][0]
+            if task not in tasks.index:
+                tasks = pd.concat([tasks, pd.DataFrame({"task_index": [len(tasks)]}, index=pd.Index([task]))])
+            task_index, n, episode = int(tasks.loc[task, "task_index"]), data.num_rows, first + k
+            for name, values in (
+                ("episode_index", [episode] * n),
+                ("index", range(frames, frames + n)),
+                ("task_index", [task_index] * n),
+            ):
+                data = data.set_column(data.column_names.index(name), name, pa.array(values, pa.int64()))
+            _reindexed(shard_stats, "episode_index", value=episode)
+            _reindexed(shard_stats, "index", by=frames)
+            _reindexed(shard_stats, "task_index", value=task_index)
             row |= {
-                f"videos/{key}/chunk_index": video_at[key][0],
-                f"videos/{key}/file_index": video_at[key][1],
-                f"videos/{key}/from_timestamp": offsets[key] + row[f"videos/{key}/from_timestamp"],
-                f"videos/{key}/to_timestamp": offsets[key] + row[f"videos/{key}/to_timestamp"],
+                "episode_index": episode,
+                "dataset_from_index": frames,
+                "dataset_to_index": frames + n,
+                "data/chunk_index": self.data_at[0],
+                "data/file_index": self.data_at[1],
+                "meta/episodes/chunk_index": self.meta_at[0],
+                "meta/episodes/file_index": self.meta_at[1],
+                COL_ROUND: round_index,
+                COL_SOURCE: CORRECTION_SOURCE if shard.is_correction else source,
+                COL_COLLECTOR: collector,
+                **_stats_columns(shard_stats),
             }
-            # The next episode starts where this file ends, as LeRobot's aggregation places it.
-            offsets[key] += get_video_duration_in_s(_the_one(folder, f"videos/{key}/chunk-*/file-*.mp4"))
-        _reindexed(row, shard_stats, "episode_index", value=episode)
-        _reindexed(row, shard_stats, "index", by=frames)
-        _reindexed(row, shard_stats, "task_index", value=task_index)
-        data_tables.append(data)
-        rows.append(row)
-        stats.append(shard_stats)
-        frames += n
+            for key in self.video_keys:
+                row |= {
+                    f"videos/{key}/chunk_index": self.video_at[key][0],
+                    f"videos/{key}/file_index": self.video_at[key][1],
+                    f"videos/{key}/from_timestamp": offsets[key] + row[f"videos/{key}/from_timestamp"],
+                    f"videos/{key}/to_timestamp": offsets[key] + row[f"videos/{key}/to_timestamp"],
+                }
+                # The next episode starts where this file ends, as LeRobot's aggregation places it.
+                offsets[key] += get_video_duration_in_s(_the_one(folder, f"videos/{key}/chunk-*/file-*.mp4"))
+            self.data_tables.append(data)
+            self.rows.append(row)
+            self.stats.append(shard_stats)
+            frames += n
+        self.new_tasks = len(tasks) > len(cursor.tasks)
+        self.tasks, self.total_frames = tasks, frames
+        self.episodes = list(range(first, first + len(shards)))
+        self.data_path = DEFAULT_DATA_PATH.format(chunk_index=self.data_at[0], file_index=self.data_at[1])
+        self.meta_path = DEFAULT_EPISODES_PATH.format(chunk_index=self.meta_at[0], file_index=self.meta_at[1])
+        self.video_paths = {
+            key: DEFAULT_VIDEO_PATH.format(video_key=key, chunk_index=at[0], file_index=at[1])
+            for key, at in self.video_at.items()
+        }
+        self.creates = [self.data_path, self.meta_path, *self.video_paths.values()]
+        self.rewrites = ["meta/info.json", "meta/stats.json", *["meta/tasks.parquet"] * self.new_tasks]
 
-    def path(template: str, at: tuple[int, int], **keys) -> Path:
-        out = root / template.format(chunk_index=at[0], file_index=at[1], **keys)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        return out
+    def write(self) -> None:
+        from lerobot.datasets.compute_stats import aggregate_stats
+        from lerobot.datasets.io_utils import cast_stats_to_numpy, write_table_one_row_group_per_episode
+        from lerobot.datasets.utils import serialize_dict
+        from lerobot.datasets.video_utils import concatenate_video_files
 
-    write_table_one_row_group_per_episode(pa.concat_tables(data_tables), path(DEFAULT_DATA_PATH, data_at))
-    pq.write_table(pa.Table.from_pylist(rows, schema=schema), path(DEFAULT_EPISODES_PATH, meta_at))
-    for key in video_keys:
-        sources = [_the_one(Path(s.path), f"videos/{key}/chunk-*/file-*.mp4") for s in shards]
-        concatenate_video_files(sources, path(DEFAULT_VIDEO_PATH, video_at[key], video_key=key))
-    tasks.index.name = "task"
-    tasks.to_parquet(root / "meta" / "tasks.parquet")
-    write_stats(aggregate_stats(stats), root)
-    total = first + len(shards)
-    info |= {
-        "total_episodes": total,
-        "total_frames": frames,
-        "total_tasks": len(tasks),
-        "splits": {"train": f"0:{total}"},
-    }
-    atomic_write_json(root / "meta" / "info.json", info)
-    return list(range(first, total))
+        root = self.root
+        for rel in self.creates:
+            (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        write_table_one_row_group_per_episode(pa.concat_tables(self.data_tables), root / self.data_path)
+        pq.write_table(pa.Table.from_pylist(self.rows, schema=self.cursor.schema), root / self.meta_path)
+        for key, rel in self.video_paths.items():
+            sources = [_the_one(Path(s.path), f"videos/{key}/chunk-*/file-*.mp4") for s in self.shards]
+            concatenate_video_files(sources, root / rel)
+        if self.new_tasks:
+            self.tasks.index.name = "task"
+            self.tasks.to_parquet(root / "meta" / "tasks.parquet")
+        # LeRobot's write_stats but for its indentation (json's pure-Python encoder: ~2.5 ms a commit; any JSON
+        # reads the same); kept as LeRobot would load it back, so the next merge aggregates exactly the same.
+        stats = serialize_dict(aggregate_stats([self.cursor.stats, *self.stats]))
+        (root / "meta" / "stats.json").write_text(json.dumps(stats))
+        self.stats_written = cast_stats_to_numpy(stats)
+        total = self.episodes[-1] + 1
+        self.info = self.cursor.info | {
+            "total_episodes": total,
+            "total_frames": self.total_frames,
+            "total_tasks": len(self.tasks),
+            "splits": {"train": f"0:{total}"},
+        }
+        atomic_write_json(root / "meta" / "info.json", self.info)
+
+    def cursor_after(self) -> _Cursor:
+        last = {
+            "data/chunk_index": self.data_at[0],
+            "data/file_index": self.data_at[1],
+            "meta/episodes/chunk_index": self.meta_at[0],
+            "meta/episodes/file_index": self.meta_at[1],
+        }
+        for key, at in self.video_at.items():
+            last |= {f"videos/{key}/chunk_index": at[0], f"videos/{key}/file_index": at[1]}
+        return _Cursor(self.info, self.tasks, self.cursor.schema, last, self.stats_written, _stamp(self.root))
 
 
 def _next_file(chunk: int, file: int, chunk_size: int) -> tuple[int, int]:

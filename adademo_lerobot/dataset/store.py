@@ -97,23 +97,29 @@ def recover_interrupted_write(root: Path, failed_here: bool = False) -> int:
     if not txn_path.exists():
         return 0
     txn = json.loads(txn_path.read_text())
-    keep = set(txn["files"])
-    removed = 0
-    for rel in _all_files(root):
-        if rel not in keep and not rel.startswith(ADADEMO_DIR + "/"):
-            (root / rel).unlink()
-            removed += 1
+    if "creates" in txn:  # a write that named its new files in advance (a merge of shards): only those go
+        created = [root / rel for rel in txn["creates"]]
+        removed = _remove_created(created)
+        keep = None
+    else:
+        keep = set(txn["files"])
+        removed = 0
+        for rel in _all_files(root):
+            if rel not in keep and not rel.startswith(ADADEMO_DIR + "/"):
+                (root / rel).unlink()
+                removed += 1
     flat = "backed_up" not in txn  # written by adademo-lerobot 0.1, which kept flat backups
     for rel in txn.get("backed_up", REWRITTEN_META):
         backup = root / TXN_BACKUP_DIR / (Path(rel).name if flat else rel)
         if backup.exists():  # a rename, not a copy: restoring must work on a full disk
             (root / rel).parent.mkdir(parents=True, exist_ok=True)
             os.replace(backup, root / rel)
-        elif rel not in keep and (root / rel).exists():
+        elif keep is not None and rel not in keep and (root / rel).exists():
             (root / rel).unlink()
         # else: restored by an earlier, interrupted rollback (the rename is done)
-    for d in sorted((p for p in root.rglob("*") if p.is_dir()), reverse=True):
-        if not any(d.iterdir()):
+    folders = {p.parent for p in created} if keep is None else (p for p in root.rglob("*") if p.is_dir())
+    for d in sorted(folders, key=lambda p: len(p.parts), reverse=True):
+        if d.is_dir() and not any(d.iterdir()):
             d.rmdir()
     txn_path.unlink()
     shutil.rmtree(root / TXN_BACKUP_DIR, ignore_errors=True)
@@ -122,9 +128,22 @@ def recover_interrupted_write(root: Path, failed_here: bool = False) -> int:
     return removed
 
 
-def _begin_write(root: Path, backed_up: list[str]) -> None:
-    """Back up the files the write will rewrite and list every file, then mark the write as begun. If this fails
-    (no space for the backups), nothing of the dataset has changed yet: the backups are removed and it raises."""
+def _remove_created(paths: list[Path]) -> int:
+    """A rolled-back write's new files (and the temporary files their atomic writes may have left)."""
+    removed = 0
+    for path in paths:
+        for candidate in (path, path.with_name(f".{path.name}.tmp")):
+            if candidate.exists():
+                candidate.unlink()
+                removed += 1
+    return removed
+
+
+def _begin_write(root: Path, backed_up: list[str], creates: list[str] | None = None) -> None:
+    """Back up the files the write will rewrite and list the files it will create (`creates`, when the write
+    knows them in advance: O(write) instead of listing the whole dataset) or else every file, then mark the write
+    as begun. If this fails (no space for the backups), nothing of the dataset has changed yet: the backups are
+    removed and it raises."""
     backup_dir = root / TXN_BACKUP_DIR
     shutil.rmtree(backup_dir, ignore_errors=True)
     try:
@@ -132,7 +151,8 @@ def _begin_write(root: Path, backed_up: list[str]) -> None:
             if (root / rel).exists():
                 (backup_dir / rel).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(root / rel, backup_dir / rel)
-        atomic_write_json(root / TXN_FILE, {"files": _all_files(root), "backed_up": backed_up}, indent=None)
+        listed = {"files": _all_files(root)} if creates is None else {"creates": creates}
+        atomic_write_json(root / TXN_FILE, {**listed, "backed_up": backed_up}, indent=None)
     except BaseException:
         shutil.rmtree(backup_dir, ignore_errors=True)
         raise
@@ -403,13 +423,14 @@ class DemoDataset:
         )
 
     @contextlib.contextmanager
-    def writing(self, what: str):
+    def writing(self, what: str, creates: list[str], rewrites: list[str]):
         """A write of files into the existing dataset (e.g. a merge of workers' shards, `dataset/shards.py`) as
-        one transaction: the block may create files and rewrite info, stats and tasks; if it fails it is rolled
-        back before the exception leaves (a machine failure then says what was being written)."""
+        one transaction: the block may create the files `creates` and rewrite those of `rewrites` (paths
+        relative to the root); if it fails it is rolled back before the exception leaves (a machine failure then
+        says what was being written)."""
         with COMMIT_LOCK:
-            _begin_write(self.root, list(REWRITTEN_META))
             try:
+                _begin_write(self.root, rewrites, creates)  # if this fails, it has changed nothing
                 yield
             except BaseException as err:
                 with _signals_deferred():

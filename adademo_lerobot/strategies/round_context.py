@@ -17,7 +17,7 @@ from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.episodes import Demonstration, EpisodeRecord, TaskRoundRecord
 from adademo_lerobot.core.seeds import fresh_state_seed
 from adademo_lerobot.dataset.ledger import RoundJournal
-from adademo_lerobot.dataset.shards import Shard, merge_into, remove_shards, shard_folder
+from adademo_lerobot.dataset.shards import Shard, ShardMerger, remove_shards, shard_folder
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_demos, demo_entry
@@ -84,6 +84,7 @@ class OrderedAppender:
         self._buffer: list[Demonstration | Shard] = []
         self._lock = threading.RLock()
         self.merged_shards = 0  # demonstrations the workers wrote themselves (merged, not appended)
+        self._merger = ShardMerger(dataset)
 
     def add(self, task: str, demo: Demonstration) -> None:
         with self._lock:
@@ -110,7 +111,7 @@ class OrderedAppender:
     def flush(self) -> None:
         with self._lock:
             if self._buffer and isinstance(self._buffer[0], Shard):
-                merge_into(self.dataset, self._buffer, self.round_index, self.source, self.collector)
+                self._merger.merge(self._buffer, self.round_index, self.source, self.collector)
                 remove_shards(self._buffer)
                 self.merged_shards += len(self._buffer)
                 self._buffer = []
