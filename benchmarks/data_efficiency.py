@@ -392,8 +392,9 @@ def phase_report(seeds: list[int], arms: list[str]) -> None:
         f"Command: `python benchmarks/data_efficiency.py arms --seeds S.. --arms A.. --summaries {SUMMARIES.name}` "
         f"(two drivers, `--torch_threads 1`), then `report --summaries {SUMMARIES.name}`; report "
         f"{machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary under "
-        f"`results/{SUMMARIES.name}/`). Runs of one machine only: trained policies differ across CPUs, so seeds "
-        "are paired only within a folder.",
+        f"`results/{SUMMARIES.name}/`). Runs of one CPU type only (an AVX-512 machine's with its kernels pinned "
+        "to AVX2 pair with an AVX2 machine's: `--cpu_isa`): trained policies differ across CPUs, so seeds are "
+        "paired only within a folder.",
         f"Recipe {', '.join(f'`{r}`' for r in recipes)} (tasks {', '.join(tasks)}): per seed every arm branches from one shared "
         "round 0 (dataset, policy, evaluation), trains each round from scratch with the same training seed, and is "
         "evaluated on the same fixed initial states; arms differ only in the flags of the script's `ALL_ARMS`.",

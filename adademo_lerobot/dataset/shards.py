@@ -27,7 +27,7 @@ import pyarrow.parquet as pq
 
 from adademo_lerobot.core.episodes import Demonstration
 from adademo_lerobot.core.errors import AdaDemoError
-from adademo_lerobot.core.files import atomic_write_json
+from adademo_lerobot.core.files import COMMIT_LOCK, atomic_write_json
 from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.layout import COL_COLLECTOR, COL_ROUND, COL_SOURCE, CORRECTION_SOURCE
@@ -222,7 +222,7 @@ def _stats_columns(stats: dict) -> dict:
 @dataclass
 class _Cursor:
     """What a merge needs of the dataset's metadata. A `ShardMerger` keeps it from one merge to the next while
-    nothing else writes the dataset (`meta/info.json`'s inode, mtime and size tell), so that a commit reads only
+    nothing else writes the dataset (`meta/info.json`'s bytes tell), so that a commit reads only
     its shards: re-reading it cost ~15 ms a commit, which the per-task commits of a round pay many times."""
 
     info: dict
@@ -230,7 +230,7 @@ class _Cursor:
     schema: pa.Schema  # of the `meta/episodes` rows
     last: dict  # the last episode row's `<file kind>/chunk_index` and `/file_index` columns
     stats: dict  # meta/stats.json as LeRobot loads it
-    stamp: tuple
+    stamp: bytes  # meta/info.json as read or written
 
     @classmethod
     def read(cls, root: Path) -> _Cursor:
@@ -250,9 +250,10 @@ class _Cursor:
         return _next_file(chunk, file, int(self.info["chunks_size"]))
 
 
-def _stamp(root: Path) -> tuple:
-    st = os.stat(Path(root) / "meta" / "info.json")
-    return st.st_ino, st.st_mtime_ns, st.st_size
+def _stamp(root: Path) -> bytes:
+    """What tells that something else wrote the dataset: every write rewrites info.json (its totals change), and a
+    file's bytes, unlike its mtime, cannot stay the same across a rewrite that changes them."""
+    return (Path(root) / "meta" / "info.json").read_bytes()
 
 
 class ShardMerger:
@@ -270,15 +271,16 @@ class ShardMerger:
         if not shards:
             return []
         root = self.dataset.root
-        cursor = self._cursor
-        if cursor is None or cursor.stamp != _stamp(root):  # first merge, or another write came between
-            cursor = _Cursor.read(root)
-        self._cursor = None  # until this merge has committed
-        merge = _Merge(root, cursor, shards, round_index, source, collector)  # reads; writes nothing yet
-        what = f"{len(shards)} episode{'s' * (len(shards) != 1)}"
-        with self.dataset.writing(what, creates=merge.creates, rewrites=merge.rewrites):
-            merge.write()
-        self._cursor = merge.cursor_after()
+        with COMMIT_LOCK:  # no other write of this process between reading the metadata and the commit
+            cursor = self._cursor
+            if cursor is None or cursor.stamp != _stamp(root):  # first merge, or another write came between
+                cursor = _Cursor.read(root)
+            self._cursor = None  # until this merge has committed
+            merge = _Merge(root, cursor, shards, round_index, source, collector)  # reads; writes nothing yet
+            what = f"{len(shards)} episode{'s' * (len(shards) != 1)}"
+            with self.dataset.writing(what, creates=merge.creates, rewrites=merge.rewrites):
+                merge.write()
+            self._cursor = merge.cursor_after()
         return merge.episodes
 
 
