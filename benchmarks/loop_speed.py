@@ -52,9 +52,14 @@ def run_units(executor, suite, ckpt: str, episodes: int, demos: int, seed: int) 
 
 def fetched(executor, task: str, seeds: range) -> tuple[list, float, float]:
     """Collect at `seeds`: the results, the seconds per result of fetching them once every one is ready on the
-    workers (the transfer alone, not the wait), and the workers' demonstrations per second (submit to all ready)."""
+    workers (the transfer alone, not the wait), and the workers' demonstrations per second (submit to all ready).
+    Ten results are fetched first and not counted: unpickling the first one imports the modules its classes
+    live in (pandas and pyarrow among them), ~0.4 s once per process, which showed as 2-4 ms a result over the first
+    160 (2026-12-04; 0.24-0.44 ms after)."""
     import ray
 
+    for p in [executor.collect(task, seed) for seed in range(seeds.start - 10, seeds.start)]:
+        p.result()
     start = time.perf_counter()
     pending = [executor.collect(task, seed) for seed in seeds]
     ray.wait([p.ref for p in pending], num_returns=len(pending))

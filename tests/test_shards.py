@@ -7,6 +7,7 @@ not make (an append, a rolled-back merge) come between."""
 from __future__ import annotations
 
 import json
+import pickle
 import shutil
 from pathlib import Path
 
@@ -168,7 +169,6 @@ written = S._Merge.write
 S._Merge.write = lambda self: (written(self), os._exit(9))
 S.merge_into(DemoDataset.open("local/x", {str(root)!r}), pickle.loads(sys.stdin.buffer.read()), 1, "b", "s")
 """
-    import pickle
     import subprocess
     import sys
 
@@ -226,11 +226,15 @@ def test_a_state_shard_is_what_lerobots_writer_writes(tmp_path):
         assert ours.row.keys() == lerobots.row.keys()
         for key, value in lerobots.row.items():
             np.testing.assert_array_equal(np.asarray(ours.row[key]), np.asarray(value), err_msg=key)
-        assert ours.stats.keys() == lerobots.stats.keys()
+        # As the driver gets it from a Ray worker: pickled (its stats travel packed in one array).
+        sent = pickle.loads(pickle.dumps(ours))
+        assert ours.stats.keys() == lerobots.stats.keys() == sent.stats.keys()
         for key, stats in lerobots.stats.items():
-            assert ours.stats[key].keys() == stats.keys()
+            assert ours.stats[key].keys() == stats.keys() == sent.stats[key].keys()
             for name, value in stats.items():
                 np.testing.assert_array_equal(ours.stats[key][name], value, err_msg=f"{key} {name}")
+                assert sent.stats[key][name].dtype == ours.stats[key][name].dtype, f"{key} {name}"
+                np.testing.assert_array_equal(sent.stats[key][name], value, err_msg=f"{key} {name}")
         a, b = read_frames(ours), read_frames(lerobots)
         assert b.equals(pq.read_table(next(Path(lerobots.path).rglob("data/*/*.parquet"))))
         assert a.schema.equals(b.schema, check_metadata=True) and a.equals(b)
