@@ -74,7 +74,7 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
     written, either as frames appended by the driver or as a shard the worker wrote and the driver merges (both
     committed 10 at a time, as `--commit_every` does by default)."""
     from adademo_lerobot.dataset.ledger import RoundJournal
-    from adademo_lerobot.dataset.shards import ShardMerger
+    from adademo_lerobot.dataset.shard_merge import ShardMerger
     from adademo_lerobot.dataset.store import DemoDataset
 
     journal = RoundJournal(tmp / "journal", 1)

@@ -41,7 +41,8 @@ def collect_demos(suite, n: int) -> list:
 
 def measure(suite, demos: list, batch: int, tmp: Path) -> dict:
     from adademo_lerobot.dataset.metadata import read_episode_metadata
-    from adademo_lerobot.dataset.shards import ShardMerger, write_shard
+    from adademo_lerobot.dataset.shard_merge import ShardMerger
+    from adademo_lerobot.dataset.shards import write_shard
     from adademo_lerobot.dataset.store import DemoDataset
 
     base, a, b = tmp / "base", tmp / "append", tmp / "merge"

@@ -23,7 +23,8 @@ from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.layout import TXN_FILE
 from adademo_lerobot.dataset.metadata import read_episode_metadata
-from adademo_lerobot.dataset.shards import ShardMerger, merge_into, read_frames, write_shard
+from adademo_lerobot.dataset.shard_merge import ShardMerger, merge_into
+from adademo_lerobot.dataset.shards import read_frames, write_shard
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
@@ -163,7 +164,7 @@ def test_a_merge_killed_before_its_commit_is_rolled_back_when_the_dataset_is_ope
     # The kill comes where a merge has written everything and not committed yet: the end of `_Merge.write`.
     script = f"""
 import os, pickle, sys
-from adademo_lerobot.dataset import shards as S
+from adademo_lerobot.dataset import shard_merge as S
 from adademo_lerobot.dataset.store import DemoDataset
 written = S._Merge.write
 S._Merge.write = lambda self: (written(self), os._exit(9))

@@ -17,7 +17,8 @@ from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.episodes import Demonstration, EpisodeRecord, TaskRoundRecord
 from adademo_lerobot.core.seeds import fresh_state_seed
 from adademo_lerobot.dataset.ledger import RoundJournal
-from adademo_lerobot.dataset.shards import Shard, ShardMerger, remove_shards, shard_folder
+from adademo_lerobot.dataset.shard_merge import ShardMerger
+from adademo_lerobot.dataset.shards import Shard, remove_shards, shard_folder
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_demos, demo_entry
@@ -170,7 +171,7 @@ class RoundContext(JournaledRound):
 
     @property
     def merged_shards(self) -> int:
-        """Demonstrations this round's workers wrote themselves, merged into the dataset (`dataset/shards.py`)."""
+        """Demonstrations this round's workers wrote themselves, merged into the dataset (`dataset/shard_merge.py`)."""
         return self._appender.merged_shards
 
     @property
