@@ -29,6 +29,10 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     costed_w5          costed with --strategy.failure_worth=5 (evaluates longer before it closes a task)
     costed_probe       costed with --strategy.probe_unsure=true (a task is probed before it gets nothing)
 
+`--cpu_isa avx2` (the default) pins the runs' numeric kernels to AVX2, so that machines with and without AVX-512
+train the same policies and their summaries pair by seed (`native`: the machine's own kernels; the summary's
+machine line says which).
+
 `--test_states per_seed` evaluates each seed on its own fixed states (--eval.seed=100+seed), so that the intervals
 over seeds include the sampling of the test states; `shared` (the default, and every folder written before it)
 evaluates every seed on eval seed 100's states.
