@@ -46,8 +46,8 @@ def _stats_columns(stats: dict) -> dict:
 @dataclass
 class _Cursor:
     """What a merge needs of the dataset's metadata. A `ShardMerger` keeps it from one merge to the next while
-    nothing else writes the dataset (`meta/info.json`'s bytes tell), so that a commit reads only
-    its shards: re-reading it cost ~15 ms a commit, which the per-task commits of a round pay many times."""
+    nothing else writes the dataset (`meta/info.json`'s bytes tell), so that a commit reads only its shards:
+    re-reading it cost ~15 ms a commit, which the per-task commits of a round pay many times."""
 
     info: dict
     tasks: pd.DataFrame
