@@ -47,7 +47,8 @@ def _stats_columns(stats: dict) -> dict:
 class _Cursor:
     """What a merge needs of the dataset's metadata. A `ShardMerger` keeps it from one merge to the next while
     nothing else writes the dataset (`meta/info.json`'s bytes tell), so that a commit reads only its shards:
-    re-reading it cost ~15 ms a commit, which the per-task commits of a round pay many times."""
+    re-reading it was a large share of a commit's ~35 ms before, which the per-task commits of a round pay many
+    times (`benchmarks/results/shard_merge.md`)."""
 
     info: dict
     tasks: pd.DataFrame
@@ -203,8 +204,9 @@ class _Merge:
         if self.new_tasks:
             self.tasks.index.name = "task"
             self.tasks.to_parquet(root / "meta" / "tasks.parquet")
-        # LeRobot's write_stats but for its indentation (json's pure-Python encoder: ~2.5 ms a commit; any JSON
-        # reads the same); kept as LeRobot would load it back, so the next merge aggregates exactly the same.
+        # LeRobot's write_stats but for its indentation (which needs json's pure-Python encoder, the larger part
+        # of writing stats.json; any JSON reads the same); kept as LeRobot would load it back, so the next merge
+        # aggregates exactly the same.
         stats = serialize_dict(aggregate_stats([self.cursor.stats, *self.stats]))
         (root / "meta" / "stats.json").write_text(json.dumps(stats))
         self.stats_written = cast_stats_to_numpy(stats)
