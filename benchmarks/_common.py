@@ -54,9 +54,9 @@ def train_small_act(dataset: Path, out: Path, steps: int = 50) -> Path:
 
 
 # Torch's, oneDNN's, MKL's, OpenBLAS's and NumPy's kernels as on an AVX2 machine: with these an AVX-512 AMD EPYC
-# trained the very policies an AVX2 one trained (MT10 seed 0's round 0: the same success rate on each of the 10
-# tasks, 2026-12-04; its collected demonstrations are the same either way), without them different ones (82.6 %
-# against 83.4 %).
+# reproduced an AVX2 one's MT10 round 0 on seeds 0 and 1 (the same success on each task; unpinned: 82.6 % against
+# 83.4 % on seed 0), but not on seed 2 (83.2 % against 84.6 %, 2026-12-04): it narrows the gap, it does not close
+# it. Compare round 0 before pairing runs of two CPU types.
 AVX2_KERNELS = {
     "ATEN_CPU_CAPABILITY": "avx2",
     "ONEDNN_MAX_CPU_ISA": "AVX2",

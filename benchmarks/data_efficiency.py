@@ -30,8 +30,8 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     costed_probe       costed with --strategy.probe_unsure=true (a task is probed before it gets nothing)
 
 `--cpu_isa avx2` (the default) pins the runs' numeric kernels to AVX2, so that machines with and without AVX-512
-train the same policies and their summaries pair by seed (`native`: the machine's own kernels; the summary's
-machine line says which).
+train closer policies (equal on MT10 seeds 0 and 1, not on seed 2: compare round 0 before pairing their summaries;
+`native`: the machine's own kernels; the summary's machine line says which).
 
 `--test_states per_seed` evaluates each seed on its own fixed states (--eval.seed=100+seed), so that the intervals
 over seeds include the sampling of the test states; `shared` (the default, and every folder written before it)
@@ -396,9 +396,9 @@ def phase_report(seeds: list[int], arms: list[str]) -> None:
         f"Command: `python benchmarks/data_efficiency.py arms --seeds S.. --arms A.. --summaries {SUMMARIES.name}` "
         f"(two drivers, `--torch_threads 1`), then `report --summaries {SUMMARIES.name}`; report "
         f"{machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary under "
-        f"`results/{SUMMARIES.name}/`). Runs of one CPU type only (an AVX-512 machine's with its kernels pinned "
-        "to AVX2 pair with an AVX2 machine's: `--cpu_isa`): trained policies differ across CPUs, so seeds are "
-        "paired only within a folder.",
+        f"`results/{SUMMARIES.name}/`). Runs of one CPU type only, or an AVX-512 machine's with its kernels pinned "
+        "to AVX2 (`--cpu_isa`) where their round 0 equals the AVX2 machine's: trained policies differ across "
+        "CPUs, so seeds are paired only within a folder.",
         f"Recipe {', '.join(f'`{r}`' for r in recipes)} (tasks {', '.join(tasks)}): per seed every arm branches from one shared "
         "round 0 (dataset, policy, evaluation), trains each round from scratch with the same training seed, and is "
         "evaluated on the same fixed initial states; arms differ only in the flags of the script's `ALL_ARMS`.",
@@ -464,8 +464,8 @@ def main() -> None:
         "--cpu_isa",
         choices=["avx2", "native"],
         default="avx2",
-        help="avx2 (default): the runs' numeric kernels pinned to AVX2, so that an AVX-512 machine trains the "
-        "same policies as an AVX2 one and summaries of both pair by seed; native: the machine's own",
+        help="avx2 (default): the runs' numeric kernels pinned to AVX2, so that an AVX-512 machine trains closer "
+        "policies to an AVX2 one's (compare round 0 before pairing); native: the machine's own",
     )
     args = parser.parse_args()
     if args.cpu_isa == "avx2":
