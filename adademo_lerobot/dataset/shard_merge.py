@@ -53,7 +53,7 @@ class _Cursor:
     info: dict
     tasks: pd.DataFrame
     schema: pa.Schema  # of the `meta/episodes` rows
-    last: dict  # the last episode row's `<file kind>/chunk_index` and `/file_index` columns
+    last: dict  # per file kind (`data`, `meta/episodes`, `videos/<key>`): the last episode's (chunk, file)
     stats: dict  # meta/stats.json as LeRobot loads it
     stamp: bytes  # meta/info.json as read or written
 
@@ -65,14 +65,15 @@ class _Cursor:
         last_file = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))[-1]
         episodes = pq.ParquetFile(last_file)
         schema = episodes.schema_arrow
-        pointers = [c for c in schema.names if c.endswith(("/chunk_index", "/file_index"))]
-        last = episodes.read_row_group(episodes.num_row_groups - 1, columns=pointers).to_pylist()[-1]
+        kinds = [c.removesuffix("/chunk_index") for c in schema.names if c.endswith("/chunk_index")]
+        columns = [f"{kind}/{index}" for kind in kinds for index in ("chunk_index", "file_index")]
+        row = episodes.read_row_group(episodes.num_row_groups - 1, columns=columns).to_pylist()[-1]
+        last = {kind: (int(row[f"{kind}/chunk_index"]), int(row[f"{kind}/file_index"])) for kind in kinds}
         tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
         return cls(read_info(root), tasks, schema, last, load_stats(root), stamp)
 
-    def next_file(self, prefix: str) -> tuple[int, int]:
-        chunk, file = int(self.last[f"{prefix}/chunk_index"]), int(self.last[f"{prefix}/file_index"])
-        return _next_file(chunk, file, int(self.info["chunks_size"]))
+    def next_file(self, kind: str) -> tuple[int, int]:
+        return _next_file(*self.last[kind], int(self.info["chunks_size"]))
 
 
 def _stamp(root: Path) -> bytes:
@@ -124,13 +125,15 @@ class _Merge:
         from lerobot.datasets.utils import DEFAULT_DATA_PATH, DEFAULT_EPISODES_PATH, DEFAULT_VIDEO_PATH
         from lerobot.datasets.video_utils import get_video_duration_in_s
 
-        self.root, self.cursor, self.shards = root, cursor, shards
+        self.root, self.cursor = root, cursor
         info = cursor.info
         first, frames = int(info["total_episodes"]), int(info["total_frames"])
         self.video_keys = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
-        self.data_at, self.meta_at = cursor.next_file("data"), cursor.next_file("meta/episodes")
-        self.video_at = {key: cursor.next_file(f"videos/{key}") for key in self.video_keys}
+        # The new file of each kind this merge writes: (chunk, file).
+        kinds = ["data", "meta/episodes", *(f"videos/{key}" for key in self.video_keys)]
+        self.at = {kind: cursor.next_file(kind) for kind in kinds}
         tasks, offsets = cursor.tasks, dict.fromkeys(self.video_keys, 0.0)
+        self.videos: dict[str, list[Path]] = {key: [] for key in self.video_keys}  # each camera's shard files
         self.data_tables, self.rows, self.stats = [], [], []
         for k, shard in enumerate(shards):
             folder = Path(shard.path)
@@ -153,10 +156,8 @@ class _Merge:
                 "episode_index": episode,
                 "dataset_from_index": frames,
                 "dataset_to_index": frames + n,
-                "data/chunk_index": self.data_at[0],
-                "data/file_index": self.data_at[1],
-                "meta/episodes/chunk_index": self.meta_at[0],
-                "meta/episodes/file_index": self.meta_at[1],
+                **{f"{kind}/chunk_index": at[0] for kind, at in self.at.items()},
+                **{f"{kind}/file_index": at[1] for kind, at in self.at.items()},
                 COL_ROUND: round_index,
                 COL_SOURCE: CORRECTION_SOURCE if shard.is_correction else source,
                 COL_COLLECTOR: collector,
@@ -164,13 +165,12 @@ class _Merge:
             }
             for key in self.video_keys:
                 row |= {
-                    f"videos/{key}/chunk_index": self.video_at[key][0],
-                    f"videos/{key}/file_index": self.video_at[key][1],
                     f"videos/{key}/from_timestamp": offsets[key] + row[f"videos/{key}/from_timestamp"],
                     f"videos/{key}/to_timestamp": offsets[key] + row[f"videos/{key}/to_timestamp"],
                 }
                 # The next episode starts where this file ends, as LeRobot's aggregation places it.
-                offsets[key] += get_video_duration_in_s(the_one(folder, f"videos/{key}/chunk-*/file-*.mp4"))
+                self.videos[key].append(the_one(folder, f"videos/{key}/chunk-*/file-*.mp4"))
+                offsets[key] += get_video_duration_in_s(self.videos[key][-1])
             self.data_tables.append(data)
             self.rows.append(row)
             self.stats.append(shard_stats)
@@ -178,11 +178,14 @@ class _Merge:
         self.new_tasks = len(tasks) > len(cursor.tasks)
         self.tasks, self.total_frames = tasks, frames
         self.episodes = list(range(first, first + len(shards)))
-        self.data_path = DEFAULT_DATA_PATH.format(chunk_index=self.data_at[0], file_index=self.data_at[1])
-        self.meta_path = DEFAULT_EPISODES_PATH.format(chunk_index=self.meta_at[0], file_index=self.meta_at[1])
+
+        def path(template: str, kind: str, **keys) -> str:
+            return template.format(chunk_index=self.at[kind][0], file_index=self.at[kind][1], **keys)
+
+        self.data_path = path(DEFAULT_DATA_PATH, "data")
+        self.meta_path = path(DEFAULT_EPISODES_PATH, "meta/episodes")
         self.video_paths = {
-            key: DEFAULT_VIDEO_PATH.format(video_key=key, chunk_index=at[0], file_index=at[1])
-            for key, at in self.video_at.items()
+            key: path(DEFAULT_VIDEO_PATH, f"videos/{key}", video_key=key) for key in self.video_keys
         }
         self.creates = [self.data_path, self.meta_path, *self.video_paths.values()]
         self.rewrites = ["meta/info.json", "meta/stats.json", *["meta/tasks.parquet"] * self.new_tasks]
@@ -199,8 +202,7 @@ class _Merge:
         write_table_one_row_group_per_episode(pa.concat_tables(self.data_tables), root / self.data_path)
         pq.write_table(pa.Table.from_pylist(self.rows, schema=self.cursor.schema), root / self.meta_path)
         for key, rel in self.video_paths.items():
-            sources = [the_one(Path(s.path), f"videos/{key}/chunk-*/file-*.mp4") for s in self.shards]
-            concatenate_video_files(sources, root / rel)
+            concatenate_video_files(self.videos[key], root / rel)
         if self.new_tasks:
             self.tasks.index.name = "task"
             self.tasks.to_parquet(root / "meta" / "tasks.parquet")
@@ -220,14 +222,7 @@ class _Merge:
         atomic_write_json(root / "meta" / "info.json", self.info)
 
     def cursor_after(self) -> _Cursor:
-        last = {
-            "data/chunk_index": self.data_at[0],
-            "data/file_index": self.data_at[1],
-            "meta/episodes/chunk_index": self.meta_at[0],
-            "meta/episodes/file_index": self.meta_at[1],
-        }
-        for key, at in self.video_at.items():
-            last |= {f"videos/{key}/chunk_index": at[0], f"videos/{key}/file_index": at[1]}
+        last = self.cursor.last | self.at
         return _Cursor(self.info, self.tasks, self.cursor.schema, last, self.stats_written, _stamp(self.root))
 
 
