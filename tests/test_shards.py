@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import pickle
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -102,9 +104,8 @@ def assert_same_dataset(appended: Path, merged: Path) -> None:
     assert stats_a.keys() == stats_m.keys()
     for feature, by_stat in stats_a.items():
         for stat, value in by_stat.items():
-            rtol = (
-                1e-4 if feature == "index" and stat.startswith("q") else 1e-6
-            )  # the shifted estimates, above
+            # The index's quantiles are the shifted estimates above.
+            rtol = 1e-4 if feature == "index" and stat.startswith("q") else 1e-6
             np.testing.assert_allclose(stats_m[feature][stat], value, rtol=rtol, err_msg=f"{feature} {stat}")
     stock = LeRobotDataset("local/x", root=merged, video_backend="pyav")
     assert stock.num_episodes == info_a["total_episodes"] and stock.num_frames == len(fa)
@@ -140,9 +141,8 @@ def test_a_merger_sees_the_writes_it_did_not_make(tmp_path, small_disk):
     filler = leave_free(small_disk, 40 * 1024)  # room for the transaction's backups, not for the new files
     with pytest.raises(AdaDemoError, match="No space left on device") as failed:
         merger.merge(shards[4:6], 1, "budgeted", "scripted")
-    assert "Error writing bytes to file" in str(
-        failed.value.__cause__
-    )  # Arrow's: the merge's own files, not backups
+    # Arrow's message: it failed writing the merge's own files, not the backups.
+    assert "Error writing bytes to file" in str(failed.value.__cause__)
     assert file_digests(merged) == before
     filler.unlink()
     assert merger.merge(shards[4:6], 1, "budgeted", "scripted") == [4, 5]
@@ -170,9 +170,6 @@ written = S._Merge.write
 S._Merge.write = lambda self: (written(self), os._exit(9))
 S.merge_into(DemoDataset.open("local/x", {str(root)!r}), pickle.loads(sys.stdin.buffer.read()), 1, "b", "s")
 """
-    import subprocess
-    import sys
-
     proc = subprocess.run([sys.executable, "-c", script], input=pickle.dumps(shards[2:]), capture_output=True)
     assert proc.returncode == 9, proc.stderr.decode()[-2000:]
     txn = json.loads((root / TXN_FILE).read_text())
