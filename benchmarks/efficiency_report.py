@@ -128,7 +128,10 @@ def load_run(summary: dict) -> Run:
     return run
 
 
-def load_runs(folder: Path) -> dict[tuple[str, int], Run]:
+def load_runs(folder: Path) -> tuple[dict[tuple[str, int], Run], list[tuple[str, int]]]:
+    """The summaries in `folder`, and the (arm, seed) left out: a run whose round 0 differs from Uniform's on
+    the same seed on some task did not start from the same policy (trained on another CPU type), so pairing it
+    would compare machines, not arms."""
     runs = {}
     for path in sorted(folder.glob("seed*-*.json")):
         summary = json.loads(path.read_text())
@@ -136,7 +139,14 @@ def load_runs(folder: Path) -> dict[tuple[str, int], Run]:
     task_sets = {tuple(r.tasks) for r in runs.values()}
     if len(task_sets) > 1:
         raise SystemExit(f"the summaries in {folder} are of different task sets: {sorted(task_sets)}")
-    return runs
+    unpaired = [
+        (arm, seed)
+        for (arm, seed), run in runs.items()
+        if arm != "uniform"
+        and ("uniform", seed) in runs
+        and not np.array_equal(run.success[:, 0], runs[("uniform", seed)].success[:, 0])
+    ]
+    return {key: run for key, run in runs.items() if key not in unpaired}, unpaired
 
 
 def cost_to_reach(x: np.ndarray, y: np.ndarray, target: float, trained_only: bool = False) -> float | None:
@@ -621,7 +631,7 @@ def write_report(
     """The report of every arm in `folder` (markdown at `out`, plot beside it); keeps a hand-written `## Reading`."""
     from adademo_lerobot.core.tables import table
 
-    runs = load_runs(folder)
+    runs, unpaired = load_runs(folder)
     seeds_of = {arm: sorted(s for a, s in runs if a == arm) for arm, _ in runs}
     if "uniform" not in seeds_of:
         raise SystemExit(f"no Uniform summary in {folder}: nothing to compare with")
@@ -638,6 +648,16 @@ def write_report(
         + "; ".join(f"{labels.get(a, a)} {', '.join(map(str, seeds_of[a]))}" for a in arms)
         + ".",
         "",
+    ]
+    if unpaired:
+        lines += [
+            "Left out, their round 0 differs from Uniform's on the same seed (trained on another CPU type, "
+            "so not from the same policy): "
+            + "; ".join(f"{labels.get(a, a)} seed {s}" for a, s in sorted(unpaired))
+            + ".",
+            "",
+        ]
+    lines += [
         "## Curves (each arm over the seeds it and Uniform both finished; Uniform over all of its own)",
         "",
         "Average success on the same 50 fixed initial states per task, mean ± std over seeds; in brackets what the "

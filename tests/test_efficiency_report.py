@@ -4,6 +4,7 @@ curves, episodes and the break-even rollout cost c*, the paired differences, the
 verdicts the results files print."""
 
 import importlib.util
+import json
 import math
 import sys
 from pathlib import Path
@@ -393,3 +394,18 @@ def test_break_even_words_for_one_run_against_a_uniform_run():
         "This run never reached the Uniform run's final 80.0 % (its best: 70.0 % after round 2): no "
         "break-even rollout cost (Uniform used 90 expert episodes)."
     ]
+
+
+def test_runs_whose_round_0_differs_from_uniforms_are_left_out_of_the_pairing(tmp_path):
+    """A run trained on another CPU type starts from another policy: pairing it would compare machines."""
+    for arm, seed, round0 in [
+        ("uniform", 0, 0.5),
+        ("budgeted", 0, 0.5),
+        ("uniform", 1, 0.5),
+        ("budgeted", 1, 0.52),
+    ]:
+        path = tmp_path / f"seed{seed}-{arm}.json"
+        path.write_text(json.dumps(summary(arm, seed, [round0, 0.6, 0.7, 0.8], 200)))
+    runs, unpaired = report.load_runs(tmp_path)
+    assert unpaired == [("budgeted", 1)]
+    assert sorted(runs) == [("budgeted", 0), ("uniform", 0), ("uniform", 1)]
