@@ -9,6 +9,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
@@ -271,3 +272,58 @@ def stock_act_checkpoint(reach_push_dataset, tmp_path_factory) -> Path:
         timeout=600,
     )
     return out / "checkpoints" / "last" / "pretrained_model"
+
+
+def episode_frames(root, episode_index):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    ds = LeRobotDataset("local/demo", root=root, episodes=[episode_index])
+    return {
+        key: np.stack([np.asarray(x) for x in ds.hf_dataset[key]])
+        for key in ("observation.environment_state", "observation.state", "action")
+    }
+
+
+def replay(suite, root, episode_index, row) -> None:
+    """An episode of the dataset, replayed from what it records: from its start state (a correction) or its
+    initial state, its actions reproduce its observations and end in success."""
+    frames = episode_frames(root, episode_index)
+    env = suite.make_env(row["task"], terminate_on_success=False)
+    obs, _ = env.reset(options={"state": row["adademo/start_state"], "new_episode": True})
+    success = False
+    for t, action in enumerate(frames["action"]):
+        np.testing.assert_allclose(
+            obs["environment_state"], frames["observation.environment_state"][t], atol=1e-6
+        )
+        np.testing.assert_allclose(obs["agent_pos"], frames["observation.state"][t], atol=1e-6)
+        obs, _, _, _, info = env.step(action)
+        success |= info["is_success"]
+    assert success, f"episode {episode_index} does not end in success on replay"
+
+
+@pytest.fixture(scope="session")
+def reach(tmp_path_factory):
+    """10 reach-v3 demonstrations and an ACT trained on them for 400 steps (it succeeds on ~25 % of states)."""
+    base = tmp_path_factory.mktemp("keep")
+    root = base / "ds"
+    run_cli(
+        "adademo-collect",
+        "--suite.type=metaworld",
+        "--suite.tasks=reach-v3",
+        "--episodes_per_task=10",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={root}",
+        "--seed=0",
+    )
+    run_cli(
+        "adademo-train",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={root}",
+        *TINY_ACT_POLICY,
+        "--batch_size=16",
+        "--steps=400",
+        "--save_freq=400",
+        f"--output_dir={base / 'train'}",
+        "--torch_threads=1",
+    )
+    return root, base / "train" / "checkpoints" / "last" / "pretrained_model"

@@ -6,7 +6,7 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import assert_cli_error, file_digests, run_cli
+from conftest import assert_cli_error, file_digests, replay, run_cli
 
 from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
@@ -31,33 +31,6 @@ def expand(root, *args, check=True):
     return run_cli(
         "adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args, check=check
     )
-
-
-def episode_frames(root, episode_index):
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    ds = LeRobotDataset("local/demo", root=root, episodes=[episode_index])
-    return {
-        key: np.stack([np.asarray(x) for x in ds.hf_dataset[key]])
-        for key in ("observation.environment_state", "observation.state", "action")
-    }
-
-
-def replay(suite, root, episode_index, row) -> None:
-    """An episode of the dataset, replayed from what it records: from its start state (a correction) or its
-    initial state, its actions reproduce its observations and end in success."""
-    frames = episode_frames(root, episode_index)
-    env = suite.make_env(row["task"], terminate_on_success=False)
-    obs, _ = env.reset(options={"state": row["adademo/start_state"], "new_episode": True})
-    success = False
-    for t, action in enumerate(frames["action"]):
-        np.testing.assert_allclose(
-            obs["environment_state"], frames["observation.environment_state"][t], atol=1e-6
-        )
-        np.testing.assert_allclose(obs["agent_pos"], frames["observation.state"][t], atol=1e-6)
-        obs, _, _, _, info = env.step(action)
-        success |= info["is_success"]
-    assert success, f"episode {episode_index} does not end in success on replay"
 
 
 def test_two_takeover_rounds_add_corrections_that_replay_exactly(dataset, ckpt):

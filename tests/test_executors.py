@@ -278,3 +278,27 @@ def test_a_killed_driver_resumes_from_the_journal_to_the_same_round(
     same_round(reference, resumed, 1)
     state = json.loads((resumed / "meta" / "info.json").read_text())
     assert state["total_episodes"] == len(read_episode_metadata(reference))
+
+
+@pytest.mark.slow
+def test_ray_keeps_the_same_successful_rollouts_as_local(reach, ray_address, tmp_path):
+    """--keep_successes on Ray: the workers write the kept rollouts as shards (merged, marked as the policy's)."""
+    source, ckpt = reach
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    shutil.copytree(source, local)
+    shutil.copytree(source, remote)
+    keep = [
+        "--strategy.type=adademo",
+        "--strategy.target_successes=2",
+        "--strategy.max_demos_per_task=20",
+        "--strategy.max_eval_episodes_per_task=40",
+        "--keep_successes=true",
+    ]
+    run_cli("adademo-expand", *expand_args(local, ckpt, keep))
+    done = run_cli("adademo-expand", *expand_args(remote, ckpt, keep), *ray_flags(ray_address))
+    same_round(local, remote, 1)
+    eps = read_episode_metadata(remote)
+    kept = eps[eps["adademo/source"] == "policy"]
+    assert len(kept) >= 1 and (kept["adademo/collector"] == "").all()
+    assert f"({len(eps) - 10} written by the Ray workers, merged here)" in done.stdout
+    check_dataset_integrity(remote)

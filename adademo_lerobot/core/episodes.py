@@ -3,7 +3,7 @@ ledger's account of one task in one round. Plain dataclasses, no behaviour, no i
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -22,6 +22,8 @@ class Demonstration:
     start_step: int = 0
     start_state: np.ndarray | None = None  # None: the initial state is all there is (a robot's joints)
     is_correction: bool = False
+    # A successful policy rollout kept as data (--keep_successes: `adademo/source=policy`), not an expert's.
+    by_policy: bool = False
 
     @property
     def num_frames(self) -> int:
@@ -59,6 +61,14 @@ class EpisodeRecord:
     takeover_step: int | None = None
     takeover_rule: str | None = None
     takeover_state: list[float] | None = None
+    # --keep_successes, successful episodes: the rollout as a Demonstration (`by_policy`), or the shard a Ray
+    # worker wrote it to. Not a figure: tables of records leave it out (`record_row`).
+    kept: object = None
+
+
+def record_row(record: EpisodeRecord) -> dict:
+    """An episode record's figures, as tables of evaluations store them."""
+    return {f.name: getattr(record, f.name) for f in fields(record) if f.name != "kept"}
 
 
 @dataclass
@@ -87,6 +97,7 @@ class TaskRoundRecord:
     collection_env_steps: int = 0  # env steps under the expert's control, failed attempts included
     demo_frames: int = 0  # frames of the demonstrations added (a correction's: from its takeover step)
     corrections: int = 0  # demonstrations that start mid-episode (--demo_start=takeover)
+    policy_episodes_kept: int = 0  # --keep_successes: successful rollouts added as `adademo/source=policy`
     takeover_failures: int = (
         0  # takeover states the expert failed from (answered from the initial state, or not)
     )

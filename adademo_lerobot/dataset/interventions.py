@@ -107,10 +107,15 @@ def segments(flags: np.ndarray, episodes: pd.DataFrame) -> pd.DataFrame:
 def imitation_units(root: str | Path, episodes: pd.DataFrame, autonomous_weight: float) -> pd.DataFrame:
     """What training samples from: the episodes themselves, or in a dataset with `intervention` frames its
     segments (`segments`): the person's (weight 1) and, when `autonomous_weight` > 0, the policy's (that weight:
-    a policy segment is drawn `autonomous_weight` times as often as a person's would be), with `weight`."""
+    a policy segment is drawn `autonomous_weight` times as often as a person's would be), with `weight`.
+    Without `intervention` frames, the successful rollouts a round kept (`--keep_successes`,
+    `adademo/source=policy`) are the policy's: weight `autonomous_weight`, left out at 0."""
     flags = intervention_flags(root)
     if flags is None:
-        return episodes
+        if COL_SOURCE not in episodes.columns or not (episodes[COL_SOURCE] == POLICY_SOURCE).any():
+            return episodes
+        weight = np.where(episodes[COL_SOURCE] == POLICY_SOURCE, float(autonomous_weight), 1.0)
+        return episodes.assign(weight=weight)[weight > 0]
     units = segments(flags, episodes)
     units["weight"] = np.where(units["person"], 1.0, float(autonomous_weight))
     units = units[units["weight"] > 0].set_index("episode_index")

@@ -34,3 +34,12 @@ IMPORTED_SOURCE = "imported"
 INTERVENTION_FEATURE = "intervention"
 POLICY_SOURCE = "policy"
 PERSON_COLLECTOR = "teleop"
+# Our rounds write POLICY_SOURCE too: the successful rollouts a round keeps (--keep_successes), collector "".
+
+
+def episode_provenance(source: str, collector: str, is_correction: bool, by_policy: bool) -> tuple[str, str]:
+    """An episode's `adademo/source` and `adademo/collector` from its commit's (the round's strategy and
+    expert): a correction's source says so, and a kept policy rollout was no expert's."""
+    if by_policy:
+        return POLICY_SOURCE, ""
+    return (CORRECTION_SOURCE if is_correction else source), collector

@@ -9,7 +9,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from adademo_lerobot.core.episodes import RolloutTrace
+from adademo_lerobot.core.episodes import Demonstration, RolloutTrace
 
 
 def frame_from_observation(observation: dict, action: np.ndarray) -> dict:
@@ -59,23 +59,29 @@ class EpisodeRecorder(gym.Wrapper):
 
 
 class RolloutTracer(gym.Wrapper):
-    """Keeps every step of the current episode: the whole state (`get_state()`) and observation before each
-    action, and the action executed. A correction starts from one of these states (`adademo_lerobot.collectors.takeover`).
+    """Keeps every step of the current episode: the whole state (`get_state()`, unless `with_states` is False) and
+    observation before each action, and the action executed. A correction starts from one of these states
+    (`adademo_lerobot.collectors.takeover`); a kept success is its observations and actions
+    (`demonstration_from_trace`).
 
     Recording stops when the episode ends: a batch keeps stepping (or auto-resetting) a finished sub-env that
     holds its final observation, and those calls are not part of the episode."""
 
-    def __init__(self, env: gym.Env):
+    def __init__(self, env: gym.Env, with_states: bool = True):
         super().__init__(env)
         self.trace: RolloutTrace | None = None
+        self.with_states = with_states
         self._ended = False
+
+    def _state(self) -> np.ndarray | None:
+        return self.env.unwrapped.get_state() if self.with_states else None
 
     def reset(self, **kwargs):
         holding = self._ended and self.env.unwrapped.hold_after_episode
         obs, info = self.env.reset(**kwargs)
         if holding and self.env.unwrapped._holding:  # a finished sub-env repeating its final observation
             return obs, info
-        self.trace = RolloutTrace([self.env.unwrapped.get_state()], [obs], [])
+        self.trace = RolloutTrace([self._state()], [obs], [])
         self._ended = False
         return obs, info
 
@@ -84,7 +90,16 @@ class RolloutTracer(gym.Wrapper):
         if not self._ended:
             executed = np.clip(np.asarray(action, np.float32), self.action_space.low, self.action_space.high)
             self.trace.actions.append(executed)
-            self.trace.states.append(self.env.unwrapped.get_state())
+            self.trace.states.append(self._state())
             self.trace.observations.append(obs)
             self._ended = terminated or truncated
         return obs, reward, terminated, truncated, info
+
+
+def demonstration_from_trace(task: str, seed: int, initial_state, trace: RolloutTrace) -> Demonstration:
+    """A successful policy rollout as data (`--keep_successes`): its frames as the expert's are recorded (the
+    observation each action was taken in and the action executed), from the initial state (and the whole state
+    there, where the trace has states: what it replays from), marked `by_policy`."""
+    frames = [frame_from_observation(o, a) for o, a in zip(trace.observations, trace.actions, strict=False)]
+    state, start = np.asarray(initial_state, np.float64), trace.states[0]
+    return Demonstration(task, state, int(seed), frames, attempts=1, start_state=start, by_policy=True)

@@ -22,7 +22,7 @@ import pyarrow.parquet as pq
 
 from adademo_lerobot.core.files import COMMIT_LOCK, atomic_write_json
 from adademo_lerobot.dataset.info import read_info
-from adademo_lerobot.dataset.layout import COL_COLLECTOR, COL_ROUND, COL_SOURCE, CORRECTION_SOURCE
+from adademo_lerobot.dataset.layout import COL_COLLECTOR, COL_ROUND, COL_SOURCE, episode_provenance
 from adademo_lerobot.dataset.shards import Shard, read_frames, the_one
 
 
@@ -159,8 +159,13 @@ class _Merge:
                 **{f"{kind}/chunk_index": at[0] for kind, at in self.at.items()},
                 **{f"{kind}/file_index": at[1] for kind, at in self.at.items()},
                 COL_ROUND: round_index,
-                COL_SOURCE: CORRECTION_SOURCE if shard.is_correction else source,
-                COL_COLLECTOR: collector,
+                **dict(
+                    zip(
+                        (COL_SOURCE, COL_COLLECTOR),
+                        episode_provenance(source, collector, shard.is_correction, shard.by_policy),
+                        strict=True,
+                    )
+                ),
                 **_stats_columns(shard_stats),
             }
             for key in self.video_keys:

@@ -42,6 +42,7 @@ class Shard:
     row: dict  # its meta/episodes row but its `stats/*` columns (the merge makes them from `stats`)
     stats: dict  # its episode's stats (numpy arrays, as LeRobot's `aggregate_stats` takes them)
     data_file: str  # its frames, relative to `path`: LeRobot's data file, or an Arrow file of the same table
+    by_policy: bool = False  # a kept policy rollout (--keep_successes), not an expert's demonstration
 
     def __getstate__(self) -> dict:
         # On its way from a worker the stats travel as one array: Ray rebuilt each of the ~80 small arrays
@@ -187,6 +188,7 @@ def _shard(path: Path, demo: Demonstration, row: dict, stats: dict, data_file: s
         row,
         stats,
         data_file,
+        demo.by_policy,
     )
 
 

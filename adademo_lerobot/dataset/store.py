@@ -63,11 +63,11 @@ from adademo_lerobot.dataset.layout import (
     COL_START_STATE,
     COL_START_STEP,
     COL_SUITE,
-    CORRECTION_SOURCE,
     EPISODE_COLUMNS,
     SUITE_FILE,
     TXN_BACKUP_DIR,
     TXN_FILE,
+    episode_provenance,
 )
 from adademo_lerobot.dataset.metadata import (
     ENV_STATE_KEY,
@@ -336,11 +336,12 @@ def provenance_columns(
     demo: Demonstration, round_index: int, source: str, collector: str, producer: str
 ) -> dict:
     """Our columns of a demonstration's episode row (`dataset/layout.py`)."""
+    source, collector = episode_provenance(source, collector, demo.is_correction, demo.by_policy)
     return {
         COL_INITIAL_STATE: np.asarray(demo.initial_state, dtype=np.float64).tolist(),
         COL_SEED: int(demo.seed),
         COL_ROUND: int(round_index),
-        COL_SOURCE: CORRECTION_SOURCE if demo.is_correction else source,
+        COL_SOURCE: source,
         COL_COLLECTOR: collector,
         COL_SUITE: producer,
         COL_START_STEP: int(demo.start_step),

@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import contextlib
 import json
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from adademo_lerobot.core.episodes import EpisodeRecord, RolloutTrace
+from adademo_lerobot.core.episodes import EpisodeRecord, RolloutTrace, record_row
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.patching import temporarily_set
 from adademo_lerobot.core.seeds import derive_seed
@@ -75,13 +74,15 @@ class BatchedEvaluator:
         observations gain little from more threads)."""
         return [record for record, _ in self._run(task, seeds, traced=False)]
 
-    def run_traced(self, task: str, seeds: list[int]) -> list[tuple[EpisodeRecord, RolloutTrace]]:
-        """`run`, also keeping every episode's states, observations and actions step by step (the same
-        episodes: tracing only reads the simulator)."""
-        return self._run(task, seeds, traced=True)
+    def run_traced(
+        self, task: str, seeds: list[int], with_states: bool = True
+    ) -> list[tuple[EpisodeRecord, RolloutTrace]]:
+        """`run`, also keeping every episode's observations and actions (and whole states, with `with_states`)
+        step by step (the same episodes: tracing only reads the simulator)."""
+        return self._run(task, seeds, traced=True, with_states=with_states)
 
     def _run(
-        self, task: str, seeds: list[int], traced: bool
+        self, task: str, seeds: list[int], traced: bool, with_states: bool = True
     ) -> list[tuple[EpisodeRecord, RolloutTrace | None]]:
         import torch
 
@@ -91,7 +92,7 @@ class BatchedEvaluator:
             states = [self.suite.sample_initial_state(task, s) for s in batch_seeds]
             envs = self._envs(task, len(batch_seeds))
             if traced:
-                envs = [RolloutTracer(env) for env in envs]
+                envs = [RolloutTracer(env, with_states) for env in envs]
             torch.manual_seed(derive_seed("rollout", *batch_seeds) % 2**63)
             with torch.inference_mode(), one_torch_thread():
                 run_batch = self._run_chunked if self.chunked else self._run_lerobot_rollout
@@ -239,7 +240,7 @@ def _noise_per_episode(loaded: LoadedPolicy, episode_seeds: list[int]):
 
 
 def success_table(records: list[EpisodeRecord], tasks: list[str]) -> pd.DataFrame:
-    df = pd.DataFrame([asdict(r) for r in records])
+    df = pd.DataFrame([record_row(r) for r in records])
     rows = []
     for task in tasks:
         sub = df[df.task == task]
@@ -279,7 +280,7 @@ def write_eval_outputs(
 
     output_dir.mkdir(parents=True, exist_ok=True)
     tmp = output_dir / ".eval_episodes.parquet.tmp"
-    pd.DataFrame([asdict(r) for r in records]).to_parquet(tmp)
+    pd.DataFrame([record_row(r) for r in records]).to_parquet(tmp)
     tmp.replace(output_dir / "eval_episodes.parquet")
     summary = {**meta, "per_task": success.to_dict(orient="records")}
     atomic_write_text(output_dir / "eval_summary.json", json.dumps(summary, indent=2))

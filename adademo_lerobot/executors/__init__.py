@@ -98,7 +98,9 @@ class Executor(Protocol):
     shard_folder: str | None
 
     def use_policy(self, path: str | None) -> None: ...
-    def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> Pending: ...
+    def evaluate(
+        self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None, keep_successes: bool = False
+    ) -> Pending: ...
     def collect(
         self,
         task: str,
@@ -135,9 +137,11 @@ class LocalExecutor:
         self._policy = str(path) if path else None
         self.worker.use_policy(self._policy)
 
-    def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> Lazy:
+    def evaluate(
+        self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None, keep_successes: bool = False
+    ) -> Lazy:
         policy = self._policy
-        return Lazy(lambda: self.worker.evaluate(task, list(seeds), policy, takeover))
+        return Lazy(lambda: self.worker.evaluate(task, list(seeds), policy, takeover, keep_successes))
 
     def collect(
         self,

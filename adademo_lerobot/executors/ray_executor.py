@@ -237,8 +237,11 @@ class RayExecutor:
         self._policy = str(path) if path else None
         self._watch.get([a.use_policy.remote(self._policy) for a in self.actors])
 
-    def evaluate(self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None) -> RayPending:
-        return self._submit("evaluate", task, list(seeds), self._policy, takeover)
+    def evaluate(
+        self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None, keep_successes: bool = False
+    ) -> RayPending:
+        shards = self.shard_folder if keep_successes else None  # a kept success's frames stay on the worker
+        return self._submit("evaluate", task, list(seeds), self._policy, takeover, keep_successes, shards)
 
     def collect(
         self,

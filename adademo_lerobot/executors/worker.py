@@ -61,25 +61,48 @@ class EpisodeWorker:
         self._policy_path = path
 
     def evaluate(
-        self, task: str, seeds: list[int], policy_path: str, takeover: TakeoverArgs | None = None
+        self,
+        task: str,
+        seeds: list[int],
+        policy_path: str,
+        takeover: TakeoverArgs | None = None,
+        keep_successes: bool = False,
+        shard_folder: str | None = None,
     ) -> list[EpisodeRecord]:
         """The policy's episodes from these seeds' initial states; with `takeover`, each failed episode's record
-        also says where the expert takes over (chosen here, where the rollout's states are)."""
+        also says where the expert takes over (chosen here, where the rollout's states are); with
+        `keep_successes`, each successful one's record keeps the rollout as data (`kept`: a Demonstration, or
+        with `shard_folder` its shard, as `collect` returns them)."""
         self.use_policy(policy_path)  # a restarted worker (after a crash) loads the policy again here
-        if takeover is None:
+        if takeover is None and not keep_successes:
             return self._evaluator.run(task, seeds)
         from adademo_lerobot.collectors.takeover import choose_takeover
+        from adademo_lerobot.dataset.recorder import demonstration_from_trace
         from adademo_lerobot.evaluation.rollouts import one_torch_thread
 
         records = []
-        for record, trace in self._evaluator.run_traced(task, seeds):
-            if not record.success:
+        # The whole states: where a takeover may start, and what a kept success replays from (where they exist).
+        with_states = takeover is not None or self.suite.restores_any_state
+        for record, trace in self._evaluator.run_traced(task, seeds, with_states):
+            if not record.success and takeover is not None:
                 with one_torch_thread():
                     point = choose_takeover(trace, takeover, self.collector.expert_first_action(task))
                 record.takeover_step, record.takeover_rule = point.step, point.rule
                 record.takeover_state = point.state.tolist()
+            if record.success and keep_successes:
+                record.kept = self._as_result(
+                    demonstration_from_trace(task, record.seed, record.initial_state, trace), shard_folder
+                )
             records.append(record)
         return records
+
+    def _as_result(self, demo, shard_folder: str | None):
+        """A demonstration as a worker hands it back: in memory, or written to its shard in `shard_folder`."""
+        if shard_folder is None:
+            return demo
+        from adademo_lerobot.dataset.shards import write_shard
+
+        return write_shard(Path(shard_folder), self.suite, demo)
 
     def collect(
         self,
@@ -100,10 +123,8 @@ class EpisodeWorker:
         initial = self.suite.sample_initial_state(task, seed)
         with one_torch_thread():
             result = self.collector.collect(task, initial, seed, start, takeover)
-        if shard_folder is not None and result.demonstration is not None:
-            from adademo_lerobot.dataset.shards import write_shard
-
-            result.demonstration = write_shard(Path(shard_folder), self.suite, result.demonstration)
+        if result.demonstration is not None:
+            result.demonstration = self._as_result(result.demonstration, shard_folder)
         return result
 
     def pid(self) -> int:

@@ -174,6 +174,9 @@ class RoundArgs(ExecutionArgs):
     # correction: the expert takes over the failed rollout at the step `--takeover.*` picks).
     demo_start: str = "initial"
     takeover: TakeoverArgs = field(default_factory=TakeoverArgs)
+    # Keep the round's successful policy rollouts in the dataset too (`adademo/source=policy`; they cost no
+    # episode the round did not run). Training draws them with --train.autonomous_weight (0: kept, not drawn).
+    keep_successes: bool = False
     # Demonstrations buffered in memory between dataset commits (a kill loses at most these).
     commit_every: int = 10
 
@@ -186,6 +189,12 @@ class RoundArgs(ExecutionArgs):
                 f"--demo_start=takeover corrects failed policy rollouts; --strategy.type={self.strategy.type} "
                 "collects from fresh initial states without evaluating: use --strategy.type=adademo or budgeted, "
                 "or --demo_start=initial"
+            )
+        if self.keep_successes and not self.strategy.needs_policy:
+            raise AdaDemoError(
+                f"--keep_successes keeps the round's successful policy rollouts; --strategy.type="
+                f"{self.strategy.type} runs none: use a strategy that evaluates (adademo, budgeted, task_only) "
+                "or drop --keep_successes"
             )
         if self.commit_every < 1:
             raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
@@ -207,6 +216,10 @@ class ExpandConfig(RoundArgs):
         """adademo-expand's flags (answered before LeRobot is imported): one round, one value per setting."""
         self.validate_round()
         self.strategy.check_one_round()
+        if self.plan_only and self.keep_successes:
+            raise AdaDemoError(
+                "--plan_only collects nothing, --keep_successes adds rollouts: pass one of them"
+            )
         if self.plan_only and not self.strategy.can_plan():
             raise AdaDemoError(
                 f"--plan_only predicts N_k = E/SR_k - E: it needs --strategy.type="

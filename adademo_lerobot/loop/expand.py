@@ -24,7 +24,7 @@ from adademo_lerobot.core.files import exclusive_use
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.features import dataset_features
-from adademo_lerobot.dataset.layout import COL_ROUND
+from adademo_lerobot.dataset.layout import COL_ROUND, COL_SOURCE, POLICY_SOURCE
 from adademo_lerobot.dataset.ledger import RoundJournal, append_ledger, ledger_rounds
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.dataset.shards import remove_shard_folders
@@ -38,11 +38,12 @@ from adademo_lerobot.suites import make_suite
 
 
 def demo_start_settings(cfg) -> dict:
-    """The round's demonstration start, as journaled (absent for the paper's: rounds journaled before it existed
-    resume unchanged)."""
+    """The round's demonstration start and whether it keeps successes, as journaled (absent for the paper's:
+    rounds journaled before they existed resume unchanged)."""
+    settings = {"keep_successes": True} if cfg.keep_successes else {}
     if cfg.demo_start == "initial":
-        return {}
-    return {"demo_start": cfg.demo_start, "takeover": cfg.takeover.to_dict()}
+        return settings
+    return settings | {"demo_start": cfg.demo_start, "takeover": cfg.takeover.to_dict()}
 
 
 def next_round(root: Path) -> int:
@@ -209,6 +210,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
         policy_path=str(cfg.policy.path) if needs_policy else None,
         commit_by_task=strategy.commits_by_task,
         takeover=cfg.takeover if cfg.demo_start == "takeover" else None,
+        keep_successes=cfg.keep_successes,
         on_progress=progress,
         on_task_done=lambda task: bar.update(1),
     )
@@ -239,6 +241,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     bar.close()
     for record in records:
         ctx.evaluation_cost(record.task, record)
+        record.policy_episodes_kept = len(ctx.kept_successes(record.task))
         record.wall_seconds = round(journal.seconds(record.task), 3)
     check_ledger_matches_dataset(root, round_index, records)
     append_ledger(root, records)
@@ -249,7 +252,11 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     print(format_round_table(records))
     merged = ctx.merged_shards
     by_workers = f" ({merged} written by the Ray workers, merged here)" if merged else ""
-    print(f"round {round_index}: {sum(r.demos_added for r in records)} new episodes in {root}{by_workers}")
+    kept = sum(r.policy_episodes_kept for r in records)
+    kept_text = f" and {kept} successful policy rollouts" if cfg.keep_successes else ""
+    print(
+        f"round {round_index}: {sum(r.demos_added for r in records)} new episodes{kept_text} in {root}{by_workers}"
+    )
     return records
 
 
@@ -265,10 +272,13 @@ def share_round_time(records: list[TaskRoundRecord], seconds: float, journal: Ro
 
 def check_ledger_matches_dataset(root: Path, round_index: int, records: list[TaskRoundRecord]) -> None:
     eps = read_episode_metadata(root)
-    counts = eps[eps[COL_ROUND] == round_index].groupby("task").size()
+    this_round = eps[eps[COL_ROUND] == round_index]
+    by_policy = this_round[COL_SOURCE] == POLICY_SOURCE
+    demos, kept = this_round[~by_policy].groupby("task").size(), this_round[by_policy].groupby("task").size()
     for r in records:
-        if int(counts.get(r.task, 0)) != r.demos_added:
+        if int(demos.get(r.task, 0)) != r.demos_added or int(kept.get(r.task, 0)) != r.policy_episodes_kept:
             raise RuntimeError(
-                f"internal error: round {round_index} {r.task}: ledger {r.demos_added} demos, "
-                f"dataset {int(counts.get(r.task, 0))}"
+                f"internal error: round {round_index} {r.task}: ledger {r.demos_added} demos and "
+                f"{r.policy_episodes_kept} policy episodes, dataset {int(demos.get(r.task, 0))} and "
+                f"{int(kept.get(r.task, 0))}"
             )

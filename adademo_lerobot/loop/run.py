@@ -28,6 +28,7 @@ from adademo_lerobot.collectors.takeover import check_can_take_over
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import atomic_write_text, exclusive_use
 from adademo_lerobot.dataset.features import dataset_features
+from adademo_lerobot.dataset.layout import POLICY_SOURCE
 from adademo_lerobot.dataset.ledger import ledger_rounds
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
 from adademo_lerobot.dataset.store import DemoDataset
@@ -136,6 +137,7 @@ def run_settings(cfg: RunConfig, suite: dict) -> dict:
         "lr_schedule": cfg.train.lr_schedule,
         "demo_start": cfg.demo_start,
         "takeover": cfg.takeover.to_dict() if cfg.demo_start == "takeover" else None,
+        **({"keep_successes": True} if cfg.keep_successes else {}),
         "start": None
         if cfg.dataset.repo_id is None
         else {
@@ -294,7 +296,12 @@ def train_round(cfg: RunConfig, run_dir: Path, data: RunData, i: int, previous: 
     elif i > 0 and cfg.train.steps_schedule == "proportional":
         eps = read_episode_metadata(data.root)
         initial = int((eps["adademo/round"] <= data.base_round).sum())
-        steps = min(cfg.train.max_steps, round(cfg.train.steps * len(eps) / max(initial, 1)))
+        # Kept policy rollouts (--keep_successes) count as the share of a demonstration training draws them at.
+        kept = int(
+            ((eps["adademo/round"] > data.base_round) & (eps["adademo/source"] == POLICY_SOURCE)).sum()
+        )
+        trained_on = len(eps) - kept * (1 - cfg.train.autonomous_weight)
+        steps = min(cfg.train.max_steps, round(cfg.train.steps * trained_on / max(initial, 1)))
     train_cfg = AdaDemoTrainConfig(
         dataset=TrainDatasetConfig(repo_id=data.repo_id, root=str(data.root)),
         policy=policy,

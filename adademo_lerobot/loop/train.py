@@ -32,6 +32,7 @@ from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_caus
 from adademo_lerobot.core.files import check_writable_location
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
+from adademo_lerobot.dataset.layout import COL_SOURCE, POLICY_SOURCE
 from adademo_lerobot.dataset.metadata import read_episode_metadata, try_load_suite_config
 from adademo_lerobot.dataset.store import recover_interrupted_write
 from adademo_lerobot.dataset.video import video_backend
@@ -272,6 +273,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     if cfg.resume:
         lerobot_training.resume_after_prepare(cfg, accelerator, policy, optimizer, lr_scheduler)
     flags = intervention_flags(root)  # LeRobot's DAgger data: who drove each frame
+    kept_rollouts = bool((episodes[COL_SOURCE] == POLICY_SOURCE).any())  # --keep_successes
     suite_cfg = try_load_suite_config(
         root
     )  # training needs only LeRobot's format; the suite is recorded if known
@@ -279,7 +281,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         "sampler": cfg.sampler,
         "min_task_weight": cfg.min_task_weight,
         "sampler_alpha": cfg.sampler_alpha,
-        **({"autonomous_weight": cfg.autonomous_weight} if flags is not None else {}),
+        **({"autonomous_weight": cfg.autonomous_weight} if flags is not None or kept_rollouts else {}),
         "episodes": int(len(episodes)),
         "frames": int(dataset.num_frames),
         "episodes_per_task": {k: int(v) for k, v in episodes["task"].value_counts().items()},

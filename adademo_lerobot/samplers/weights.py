@@ -44,15 +44,23 @@ def floor_shares(shares: dict[str, float], floor: float) -> dict[str, float]:
 class SamplingScheme(Protocol):
     name: str
 
-    def episode_probabilities(self, episode_tasks: pd.Series, episode_lengths: pd.Series) -> np.ndarray:
-        """Probability of drawing each episode (sums to 1), in the order of `episode_tasks`."""
+    def episode_probabilities(
+        self, episode_tasks: pd.Series, episode_lengths: pd.Series, weights: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Probability of drawing each episode (sums to 1), in the order of `episode_tasks`. An episode of
+        weight w counts as w episodes (the policy's own, `--autonomous_weight`): in its task's trajectories
+        and in its draws."""
+
+
+def _weights(weights: np.ndarray | None, n: int) -> np.ndarray:
+    return np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
 
 
 class FrameUniform:
     name = "frame"
 
-    def episode_probabilities(self, episode_tasks, episode_lengths) -> np.ndarray:
-        lengths = np.asarray(episode_lengths, dtype=np.float64)
+    def episode_probabilities(self, episode_tasks, episode_lengths, weights=None) -> np.ndarray:
+        lengths = np.asarray(episode_lengths, dtype=np.float64) * _weights(weights, len(episode_lengths))
         return lengths / lengths.sum()
 
 
@@ -68,17 +76,26 @@ class Tempered:
     def __init__(self, alpha: float = 1.0, min_task_weight: float = 0.0):
         self.alpha, self.min_task_weight = alpha, min_task_weight
 
-    def task_shares(self, episode_tasks) -> dict[str, float]:
-        counts = pd.Series(np.asarray(episode_tasks)).value_counts()
+    def task_shares(self, episode_tasks, weights: np.ndarray | None = None) -> dict[str, float]:
+        counts = _task_counts(episode_tasks, weights)
         powered = {t: float(c) ** self.alpha for t, c in counts.items()}
         total = sum(powered.values())
         return floor_shares({t: v / total for t, v in powered.items()}, self.min_task_weight)
 
-    def episode_probabilities(self, episode_tasks, episode_lengths) -> np.ndarray:
+    def episode_probabilities(self, episode_tasks, episode_lengths, weights=None) -> np.ndarray:
         tasks = np.asarray(episode_tasks)
-        counts = pd.Series(tasks).value_counts()
-        shares = self.task_shares(tasks)
-        return np.array([shares[t] / counts[t] for t in tasks])
+        counts, shares = _task_counts(tasks, weights), self.task_shares(tasks, weights)
+        w = _weights(weights, len(tasks))
+        return np.array([shares[t] * wi / counts[t] for t, wi in zip(tasks, w, strict=True)])
+
+
+def _task_counts(episode_tasks, weights: np.ndarray | None) -> pd.Series:
+    """Each task's trajectories, an episode of weight w counting as w (unweighted: counted exactly as before
+    weights existed, in the same order, so the shares' float sums and a run's draws stay the same)."""
+    tasks = np.asarray(episode_tasks)
+    if weights is None:
+        return pd.Series(tasks).value_counts()
+    return pd.Series(np.asarray(weights, dtype=np.float64)).groupby(tasks).sum()
 
 
 class TrajectoryUniform(Tempered):
@@ -154,9 +171,8 @@ def frame_weights(
             f"episodes {short} are too short to train on (drop_n_last_frames={drop_n_last_frames})"
         )
     lengths = pd.Series(usable, index=episodes.index)
-    probs = scheme.episode_probabilities(episodes["task"], lengths)
-    if "weight" in episodes.columns:
-        probs = probs * episodes["weight"].to_numpy(np.float64)
+    weights = episodes["weight"].to_numpy(np.float64) if "weight" in episodes.columns else None
+    probs = scheme.episode_probabilities(episodes["task"], lengths, weights)
     weights = np.zeros(num_frames, dtype=np.float64)
     for start, end, p, n in zip(starts, ends, probs, usable, strict=True):
         weights[start:end] = p / n

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from adademo_lerobot.core.episodes import Demonstration, TaskRoundRecord
-from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
+from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED, COL_SOURCE, POLICY_SOURCE
 from adademo_lerobot.dataset.ledger import RoundJournal
 from adademo_lerobot.dataset.metadata import has_dataset, read_episode_metadata
 from adademo_lerobot.dataset.shards import Shard
@@ -128,12 +128,13 @@ class JournaledRound:
         record.eval_env_steps = sum(e["steps"] for e in evals.values())
 
 
-def committed_demos(root: Path, round_index: int) -> dict[str, set[int]]:
-    """This round's demonstrations already in the dataset, by task (their seeds): what survived a stop."""
+def committed_demos(root: Path, round_index: int, by_policy: bool = False) -> dict[str, set[int]]:
+    """This round's demonstrations already in the dataset, by task (their seeds): what survived a stop. With
+    `by_policy`, the policy's kept successes (`--keep_successes`) instead."""
     if not has_dataset(root):
         return {}
     eps = read_episode_metadata(root)
-    this_round = eps[eps[COL_ROUND] == round_index]
+    this_round = eps[(eps[COL_ROUND] == round_index) & ((eps[COL_SOURCE] == POLICY_SOURCE) == by_policy)]
     return {
         task: set(seeds.astype(np.int64).tolist()) for task, seeds in this_round.groupby("task")[COL_SEED]
     }

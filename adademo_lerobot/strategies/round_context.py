@@ -15,6 +15,7 @@ from pathlib import Path
 
 from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.episodes import Demonstration, EpisodeRecord, TaskRoundRecord
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.seeds import fresh_state_seed
 from adademo_lerobot.dataset.ledger import RoundJournal
 from adademo_lerobot.dataset.shard_merge import ShardMerger
@@ -140,9 +141,12 @@ class RoundContext(JournaledRound):
     # --demo_start=takeover: demonstrations are corrections that start where the expert takes over the failed
     # rollout (this rule picks the step); None: from the failed episode's initial state (the paper).
     takeover: TakeoverArgs | None = None
+    # --keep_successes: the round's successful rollouts are added to the dataset too (`adademo/source=policy`).
+    keep_successes: bool = False
     on_progress: Callable[[str, TaskRoundRecord], None] | None = None
     on_task_done: Callable[[str], None] | None = None
     _committed: dict[str, set[int]] = field(default_factory=dict)
+    _kept: dict[str, set[int]] = field(default_factory=dict)  # seeds of the successes kept, by task
     _pending: dict[tuple[str, int], Pending] = field(default_factory=dict)
     _takeover_states: dict[tuple[str, int], list[float]] = field(default_factory=dict)
     _appender: OrderedAppender | None = None
@@ -164,10 +168,15 @@ class RoundContext(JournaledRound):
             self.suite.tasks if self.commit_by_task else None,
         )
         self._committed = committed_demos(self.dataset.root, self.round_index)
+        self._kept = committed_demos(self.dataset.root, self.round_index, by_policy=True)
         if self.executor.writes_shards and self.dataset.can_merge(self.suite):
             folder = shard_folder(self.dataset.root, self.round_index)
             shutil.rmtree(folder, ignore_errors=True)  # a stopped run's shards: never merged, collected again
             self.executor.shard_folder = str(folder)
+
+    def kept_successes(self, task: str) -> set[int]:
+        """Seeds of the task's successful rollouts this round added to the dataset (--keep_successes)."""
+        return self._kept.get(task, set())
 
     @property
     def merged_shards(self) -> int:
@@ -197,11 +206,13 @@ class RoundContext(JournaledRound):
         self._check_not_aborted()
         known = self.known_evaluations(task)
         todo = [s for s in seeds if s not in known]
+        ran = {}
         if todo:
-            fresh = {
-                r.seed: eval_entry(task, r)
-                for r in self.executor.evaluate(task, todo, self.takeover).result()
+            ran = {
+                r.seed: r
+                for r in self.executor.evaluate(task, todo, self.takeover, self.keep_successes).result()
             }
+            fresh = {s: eval_entry(task, r) for s, r in ran.items()}
             self._journal(*(fresh[s] for s in todo))
             with self._lock:
                 self.eval_env_steps += sum(e["steps"] for e in fresh.values())
@@ -209,7 +220,31 @@ class RoundContext(JournaledRound):
         for s in seeds:
             if self.takeover is not None and not known[s]["success"]:
                 self._takeover_states[(task, s)] = known[s]["takeover_state"]
+        if self.keep_successes:
+            self._keep_successes(task, seeds, [s for s in seeds if known[s]["success"]], ran)
         return [Outcome(s, bool(known[s]["success"])) for s in seeds]
+
+    def _keep_successes(
+        self, task: str, seeds: list[int], successes: list[int], ran: dict[int, EpisodeRecord]
+    ) -> None:
+        """The successful rollouts added to the dataset, in seed order, each once a round. A success journaled
+        before a stop whose rollout was not committed yet is run again, traced, in the batches it first ran in
+        (these `seeds`, as the strategy asks again after a stop): the same episode to the last bit (an episode
+        depends on the policy, its seed and its batch, `BatchedEvaluator.run`)."""
+        kept = self._kept.setdefault(task, set())
+        if any(s not in kept and s not in ran for s in successes):
+            ran = {r.seed: r for r in self.executor.evaluate(task, seeds, None, True).result()}
+        for s in successes:
+            if s in kept:
+                continue
+            if ran[s].kept is None:  # the rerun failed where the journal says it succeeded: not reproducible
+                raise AdaDemoError(
+                    f"{task}, seed {s}: the journal says the policy succeeded, its rerun did not; the policy's "
+                    "episodes are not reproducible here, so its successes cannot be kept after a stop: rerun "
+                    "without --keep_successes"
+                )
+            self._appender.add(task, ran[s].kept)
+            kept.add(s)
 
     # -- collection -------------------------------------------------------------------------------------
     def ask_expert(self, task: str, seeds: list[int]) -> None:

@@ -1,0 +1,147 @@
+"""Keeping the round's successful policy rollouts as data (`--keep_successes`) on a real dataset and a real ACT
+that succeeds now and then: over two rounds every successful evaluation is in the dataset once, as an
+`adademo/source=policy` episode that replays to success, beside the expert's demonstrations; a killed round
+resumes to the same dataset; training draws the kept rollouts with `--autonomous_weight`."""
+
+import shutil
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pandas as pd
+from conftest import BIN, assert_cli_error, file_digests, replay, run_cli
+
+from adademo_lerobot.dataset.interventions import imitation_units
+from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
+from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.dataset.store import recover_interrupted_write
+from adademo_lerobot.samplers import frame_weights, make_sampling_scheme
+from adademo_lerobot.suites import make_suite
+from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
+
+
+def args(root, ckpt, *extra):
+    return [
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={root}",
+        f"--policy.path={ckpt}",
+        "--strategy.type=adademo",
+        "--strategy.target_successes=2",
+        "--strategy.max_demos_per_task=20",
+        "--strategy.max_eval_episodes_per_task=40",
+        "--eval.batch_size=2",
+        "--keep_successes=true",
+        *extra,
+    ]
+
+
+def successes(root, round_index) -> list[int]:
+    return [
+        e["seed"] for e in read_round_evaluations(root, round_index) if e["type"] == "eval" and e["success"]
+    ]
+
+
+def test_two_rounds_keep_every_successful_rollout_once_and_it_replays(reach, tmp_path):
+    source, ckpt = reach
+    root = tmp_path / "ds"
+    shutil.copytree(source, root)
+    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3"))
+    for round_index in (1, 2):
+        run_cli("adademo-expand", *args(root, ckpt))
+        eps = read_episode_metadata(root)
+        new = eps[eps["adademo/round"] == round_index]
+        kept = new[new["adademo/source"] == "policy"]
+        won = successes(root, round_index)
+        assert len(won) >= 1, "the ACT succeeded at least once"
+        # Every successful evaluation once, in the order it was evaluated; the expert's answer the failures.
+        assert kept["adademo/seed"].tolist() == won
+        assert (kept["adademo/collector"] == "").all()
+        experts = new[new["adademo/source"] == "adademo"]
+        assert not set(experts["adademo/seed"]) & set(won)
+        [ledger] = [r for r in read_ledger(root) if r["round"] == round_index]
+        assert ledger["policy_episodes_kept"] == len(kept) and ledger["demos_added"] == len(experts)
+        assert ledger["successes"] == len(kept)  # adademo stops at E successes: all of them kept
+        for index, row in kept.iterrows():
+            replay(suite, root, index, row)
+            assert row["length"] == next(
+                e["steps"]
+                for e in read_round_evaluations(root, round_index)
+                if e["type"] == "eval" and e["seed"] == row["adademo/seed"]
+            )
+    # Round 2 drew other states than round 1.
+    eps = read_episode_metadata(root)
+    policy = eps[eps["adademo/source"] == "policy"]
+    assert set(policy[policy["adademo/round"] == 1]["adademo/seed"]).isdisjoint(
+        policy[policy["adademo/round"] == 2]["adademo/seed"]
+    )
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    assert LeRobotDataset("local/demo", root=root).num_episodes == len(eps)
+
+    # Training draws the kept rollouts only with --autonomous_weight > 0, each as that many demonstrations.
+    def weights(w: float) -> pd.Series:
+        units = imitation_units(root, eps, w)
+        frames = frame_weights(make_sampling_scheme("trajectory", 0.0, 1), units, int(eps["length"].sum()))
+        return pd.Series(
+            [frames[a:b].sum() for a, b in zip(eps.dataset_from_index, eps.dataset_to_index, strict=True)],
+            index=eps.index,
+        )
+
+    is_policy = eps["adademo/source"] == "policy"
+    assert (weights(0.0)[is_policy] == 0).all() and (weights(0.0)[~is_policy] > 0).all()
+    half = weights(0.5)
+    np.testing.assert_allclose(half[is_policy], half[~is_policy].iloc[0] / 2)
+    np.testing.assert_allclose(half.sum(), 1.0)
+
+
+def test_a_killed_round_resumes_to_the_dataset_an_uninterrupted_round_makes(reach, tmp_path):
+    """Killed once a success is journaled and before anything of the round is committed (one commit at the
+    task's end): the rerun runs the journaled successes again and keeps them, in the same order."""
+    source, ckpt = reach
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    shutil.copytree(source, whole)
+    shutil.copytree(source, killed)
+    run_cli("adademo-expand", *args(whole, ckpt, "--commit_every=100"))
+    journal = killed / "meta" / "adademo" / "journal-round-001.jsonl"
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-expand"), *args(killed, ckpt, "--commit_every=100")],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.time() + 300
+    while not (journal.is_file() and '"success": true' in journal.read_text()):
+        assert time.time() < deadline and proc.poll() is None, "expand ended before a success was journaled"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    recover_interrupted_write(killed)
+    assert len(read_episode_metadata(killed)) == 10, "nothing of the round was committed before the kill"
+    run_cli("adademo-expand", *args(killed, ckpt, "--commit_every=100"))
+    columns = ["task", "length", "adademo/seed", "adademo/round", "adademo/source"]
+    pd.testing.assert_frame_equal(
+        read_episode_metadata(killed)[columns], read_episode_metadata(whole)[columns]
+    )
+
+    def frames(root):
+        return pd.concat(pd.read_parquet(p) for p in sorted((root / "data").rglob("*.parquet")))
+
+    pd.testing.assert_frame_equal(frames(killed), frames(whole))
+
+
+def test_keep_successes_with_a_strategy_that_runs_no_rollout_is_refused(reach, tmp_path):
+    source, ckpt = reach
+    before = file_digests(source)
+    assert_cli_error(
+        "adademo-expand",
+        "--dataset.repo_id=local/demo",
+        f"--dataset.root={source}",
+        "--strategy.type=uniform",
+        "--strategy.demos_per_task=1",
+        "--keep_successes=true",
+        match="--keep_successes",
+    )
+    assert_cli_error(
+        "adademo-expand", *args(source, ckpt, "--plan_only=true"), match="--plan_only collects nothing"
+    )
+    assert file_digests(source) == before
