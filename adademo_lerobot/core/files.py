@@ -71,10 +71,16 @@ def atomic_write_json(path: Path, data, indent: int | None = 2) -> None:
     atomic_write_text(path, json.dumps(data, indent=indent, sort_keys=indent is not None) + "\n")
 
 
-def append_json_lines(path: Path, entries: list[dict]) -> None:
-    """Append one JSON object per line and fsync: once this returns, a kill cannot lose them. A write that fails
-    (a full disk) is cut off again, and a line a kill tore is dropped before appending, so that every line
-    after it stays readable."""
+def sync_file(path: Path) -> None:
+    """fsync a file written without it (what every process wrote to it, not only this one's descriptor)."""
+    with open(path, "rb") as f:
+        os.fsync(f.fileno())
+
+
+def append_json_lines(path: Path, entries: list[dict], sync: bool = True) -> None:
+    """Append one JSON object per line: once this returns, a kill of the process cannot lose them, and with
+    `sync` (fsync) neither can a crash of the machine. A write that fails (a full disk) is cut off again, and a
+    line a kill tore is dropped before appending, so that every line after it stays readable."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     data = "".join(json.dumps(e) + "\n" for e in entries).encode()
@@ -91,7 +97,8 @@ def append_json_lines(path: Path, entries: list[dict]) -> None:
         try:
             f.write(data)
             f.flush()
-            os.fsync(f.fileno())
+            if sync:
+                os.fsync(f.fileno())
         except BaseException:
             with suppress(OSError):
                 f.truncate(size)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
-from adademo_lerobot.core.files import append_json_lines, atomic_write_text, read_json_lines
+from adademo_lerobot.core.files import append_json_lines, atomic_write_text, read_json_lines, sync_file
 from adademo_lerobot.dataset.layout import ADADEMO_DIR, LEDGER_FILE
 
 
@@ -58,6 +58,7 @@ class RoundJournal:
         self._expert_failures: dict[str, dict[int, dict]] = defaultdict(dict)
         self._demos: dict[str, dict[int, dict]] = defaultdict(dict)
         self._seconds: dict[str, float] = defaultdict(float)
+        self._unsynced = False
 
     @staticmethod
     def in_progress(root: Path) -> list[int]:
@@ -86,12 +87,21 @@ class RoundJournal:
                 self._index(entry)
         return self._entries
 
-    def append(self, *entries: dict) -> None:
+    def append(self, *entries: dict, sync: bool = True) -> None:
+        """Entries after the others; without `sync` a kill cannot lose them but a machine crash can, until the
+        next `sync()` (a simulated round syncs before each dataset commit: what it lost is run again, the same)."""
         self.entries()  # loaded before the first append, so memory and file stay the same
-        append_json_lines(self.path, list(entries))
+        append_json_lines(self.path, list(entries), sync)
+        self._unsynced |= not sync
         for entry in entries:
             self._entries.append(entry)
             self._index(entry)
+
+    def sync(self) -> None:
+        """Every entry so far durable (a no-op when they all are)."""
+        if self._unsynced and self.path.exists():
+            sync_file(self.path)
+        self._unsynced = False
 
     def start(self, settings: dict) -> None:
         """Begin the round, or check that a resumed round uses the same settings."""
@@ -134,6 +144,7 @@ class RoundJournal:
 
     def finish(self) -> None:
         """Keep the round's evaluation records (which states failed) beside the ledger; end the journal."""
+        self.sync()
         if self.path.exists():
             os.replace(self.path, self.archive_path)
 

@@ -74,8 +74,12 @@ class OrderedAppender:
         collector: str,
         commit_every: int,
         tasks: list[str],
+        before_commit: Callable[[], None] | None = None,
     ):
         self.dataset, self.suite = dataset, suite
+        self.before_commit = (
+            before_commit  # e.g. the journal's entries made durable before the demos they count
+        )
         self.round_index, self.source, self.collector = round_index, source, collector
         self.commit_every = max(1, commit_every)
         self.by_task = tasks is not None  # None: commit in the order demos arrive (one loop over all tasks)
@@ -112,6 +116,8 @@ class OrderedAppender:
 
     def flush(self) -> None:
         with self._lock:
+            if self._buffer and self.before_commit is not None:
+                self.before_commit()
             if self._buffer and isinstance(self._buffer[0], Shard):
                 self._merger.merge(self._buffer, self.round_index, self.source, self.collector)
                 remove_shards(self._buffer)
@@ -156,6 +162,7 @@ class RoundContext(JournaledRound):
     eval_env_steps: int = (
         0  # env steps of the evaluations this context ran (not those reused from the journal)
     )
+    sync_each_entry = False  # the journal is synced before each commit (`OrderedAppender.before_commit`)
 
     def __post_init__(self) -> None:
         self._appender = OrderedAppender(
@@ -166,6 +173,7 @@ class RoundContext(JournaledRound):
             self.collector_name,
             self.commit_every,
             self.suite.tasks if self.commit_by_task else None,
+            self.journal.sync if self.journal else None,
         )
         self._committed = committed_demos(self.dataset.root, self.round_index)
         self._kept = committed_demos(self.dataset.root, self.round_index, by_policy=True)
