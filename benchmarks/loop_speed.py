@@ -80,7 +80,9 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
     journal = RoundJournal(tmp / "journal", 1)
     start = time.perf_counter()
     for k in range(200):  # as a round journals: a line per answer, made durable before each commit of 10
-        journal.append({"type": "demo", "task": "reach-v3", "seed": k, "steps": 200, "frames": 80}, sync=False)
+        journal.append(
+            {"type": "demo", "task": "reach-v3", "seed": k, "steps": 200, "frames": 80}, sync=False
+        )
         if k % 10 == 9:
             journal.sync()
     journal_s = (time.perf_counter() - start) / 200
