@@ -28,8 +28,8 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     costed, costed_knn budgeted + --strategy.rollout_cost=1 (rollouts paid from the budget), random or k-NN states
     costed_w5          costed with --strategy.failure_worth=5 (evaluates longer before it closes a task)
     costed_probe       costed with --strategy.probe_unsure=true (a task is probed before it gets nothing)
-    costed_probe_keep  costed_probe + --keep_successes=true --train.autonomous_weight=0.25 (its successful
-                       rollouts kept as data, each drawn as a quarter of a demonstration)
+    costed_probe_keep  costed_probe + --keep_successes=true --train.autonomous_weight=1 (its successful
+                       rollouts kept as data, each drawn as a demonstration)
 
 `--cpu_isa avx2` (the default) pins the runs' numeric kernels to AVX2, so that machines with and without AVX-512
 train closer policies (equal on MT10 seeds 0 and 1, not on seed 2: compare round 0 before pairing their summaries;
@@ -113,16 +113,16 @@ ALL_ARMS = {
         "--strategy.rollout_cost=1",
         "--strategy.probe_unsure=true",
     ],
-    # costed_probe keeping its successful rollouts as data (no episode it did not run), each drawn as a quarter
-    # of a demonstration of its task: a quarter, so that a strong task's many successes do not take the weak
-    # tasks' share of training (principle C counts trajectories).
+    # costed_probe keeping its successful rollouts as data (no episode it did not run), each drawn as a
+    # demonstration of its task: it runs ~7 rollouts per task in three rounds (benchmarks/results/mt10_cost.md), so
+    # a strong task's few kept successes cannot take the weak tasks' share of training.
     "costed_probe_keep": [
         "--strategy.type=budgeted",
         "--train.sampler=trajectory",
         "--strategy.rollout_cost=1",
         "--strategy.probe_unsure=true",
         "--keep_successes=true",
-        "--train.autonomous_weight=0.25",
+        "--train.autonomous_weight=1",
     ],
     # Corrections from the point of failure (--demo_start=takeover), with either rule (the default chosen here).
     "budgeted_takeover": ["--strategy.type=budgeted", "--train.sampler=trajectory", *TAKEOVER, *DISAGREEMENT],
@@ -152,7 +152,7 @@ LABELS = {
     "costed_knn": "Budgeted paying for rollouts (cost 1, W = 3), k-NN states",
     "costed_w5": "Budgeted paying for rollouts (cost 1, W = 5)",
     "costed_probe": "Budgeted paying for rollouts (cost 1, W = 3), probing unsure tasks",
-    "costed_probe_keep": "costed_probe keeping its successful rollouts (each a quarter of a demonstration)",
+    "costed_probe_keep": "costed_probe keeping its successful rollouts (each as a demonstration)",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
