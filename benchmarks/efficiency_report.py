@@ -600,6 +600,7 @@ def cost_lines(
         )
         + ".",
     ]
+    lines += kept_rollout_lines(runs, curve_seeds, labels)
     inexact = {labels.get(a, a): r.bounds_reason for (a, s), r in sorted(runs.items()) if not r.exact}
     if inexact:
         lines += [
@@ -610,6 +611,30 @@ def cost_lines(
             "the figure plots the lower.",
         ]
     return lines
+
+
+def kept_rollout_lines(
+    runs: dict[tuple[str, int], Run], curve_seeds: dict[str, list[int]], labels: dict[str, str]
+) -> list[str]:
+    """The successful rollouts arms kept as data (`--keep_successes`) per task, which cost no episode of their own
+    (they are among the rollouts above); nothing when no arm kept any."""
+    kept = {
+        arm: np.array(
+            [sum(r.get("policy_episodes_kept", 0) for r in runs[(arm, s)].ledger) for s in seeds], float
+        )
+        / len(runs[(arm, seeds[0])].tasks)
+        for arm, seeds in curve_seeds.items()
+    }
+    kept = {arm: values for arm, values in kept.items() if values.any()}
+    if not kept:
+        return []
+    return [
+        "",
+        "Successful rollouts kept as data (`--keep_successes`, `adademo/source=policy`) per task after round 3, "
+        "among the rollouts above: "
+        + "; ".join(f"{labels.get(a, a)} {fmt_mean(v, '.1f')}" for a, v in kept.items())
+        + ".",
+    ]
 
 
 def fmt_seed_cstar(values: PerSeed, i: int) -> str:

@@ -409,3 +409,14 @@ def test_runs_whose_round_0_differs_from_uniforms_are_left_out_of_the_pairing(tm
     runs, unpaired = report.load_runs(tmp_path)
     assert unpaired == [("budgeted", 1)]
     assert sorted(runs) == [("budgeted", 0), ("uniform", 0), ("uniform", 1)]
+
+
+def test_kept_successful_rollouts_are_reported_per_task_only_where_an_arm_kept_some():
+    kept = summary("keep", 0, [0.5, 0.6, 0.7, 0.8], 200)
+    for row in kept["ledger"]:
+        row["policy_episodes_kept"] = 3 if row["task"] == "a" else 1
+    runs = {("uniform", 0): report.load_run(summary("uniform", 0, [0.5, 0.6, 0.7, 0.8], 200))}
+    assert report.kept_rollout_lines(runs, {"uniform": [0]}, {}) == []
+    runs[("keep", 0)] = report.load_run(kept)
+    [_, line] = report.kept_rollout_lines(runs, {"uniform": [0], "keep": [0]}, {"keep": "Keeper"})
+    assert line.endswith("Keeper 6.0.")  # (3 + 1) x 3 rounds over 2 tasks
