@@ -434,6 +434,8 @@ TITLES = {
     "corrections": "Corrections from the point of failure on MetaWorld: takeover arms against Uniform and budgeted",
     "mt10": "Data efficiency on MetaWorld MT10: Uniform, AdaDemo, budgeted, budgeted + takeover corrections",
     "mt10_cost": "MetaWorld MT10, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
+    # The second table: the same arms on the hard 8 (`recipes/budgeted.yaml`), 3 seeds, per-seed test states.
+    "hard8_cost": "The hard 8 of MetaWorld, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
 }
 TAKEOVER_ARMS = {
     "budgeted_takeover",
