@@ -37,7 +37,7 @@ from adademo_lerobot.strategies.task_only import estimate_success
 from adademo_lerobot.suites import make_suite
 
 
-def demo_start_settings(cfg) -> dict:
+def journaled_round_settings(cfg) -> dict:
     """The round's demonstration start and whether it keeps successes, as journaled (absent for the paper's:
     rounds journaled before they existed resume unchanged)."""
     settings = {"keep_successes": True} if cfg.keep_successes else {}
@@ -229,7 +229,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
             **decided,
             "seed": cfg.seed,
             "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
-            **demo_start_settings(cfg),
+            **journaled_round_settings(cfg),
         }
     )
     started_at = time.perf_counter()

@@ -171,8 +171,8 @@ def frame_weights(
             f"episodes {short} are too short to train on (drop_n_last_frames={drop_n_last_frames})"
         )
     lengths = pd.Series(usable, index=episodes.index)
-    weights = episodes["weight"].to_numpy(np.float64) if "weight" in episodes.columns else None
-    probs = scheme.episode_probabilities(episodes["task"], lengths, weights)
+    unit_weights = episodes["weight"].to_numpy(np.float64) if "weight" in episodes.columns else None
+    probs = scheme.episode_probabilities(episodes["task"], lengths, unit_weights)
     weights = np.zeros(num_frames, dtype=np.float64)
     for start, end, p, n in zip(starts, ends, probs, usable, strict=True):
         weights[start:end] = p / n

@@ -132,13 +132,20 @@ class JournaledRound:
         record.eval_env_steps = sum(e["steps"] for e in evals.values())
 
 
-def committed_demos(root: Path, round_index: int, by_policy: bool = False) -> dict[str, set[int]]:
-    """This round's demonstrations already in the dataset, by task (their seeds): what survived a stop. With
-    `by_policy`, the policy's kept successes (`--keep_successes`) instead."""
+def committed_demos(root: Path, round_index: int) -> dict[str, set[int]]:
+    """This round's demonstrations already in the dataset, by task (their seeds): what survived a stop."""
+    return committed_answers(root, round_index)[0]
+
+
+def committed_answers(root: Path, round_index: int) -> tuple[dict[str, set[int]], dict[str, set[int]]]:
+    """`committed_demos`, and this round's kept policy successes (`--keep_successes`) by task, from one read."""
     if not has_dataset(root):
-        return {}
+        return {}, {}
     eps = read_episode_metadata(root)
-    this_round = eps[(eps[COL_ROUND] == round_index) & ((eps[COL_SOURCE] == POLICY_SOURCE) == by_policy)]
-    return {
-        task: set(seeds.astype(np.int64).tolist()) for task, seeds in this_round.groupby("task")[COL_SEED]
-    }
+    this_round = eps[eps[COL_ROUND] == round_index]
+    by_policy = this_round[COL_SOURCE] == POLICY_SOURCE
+
+    def seeds_by_task(rows) -> dict[str, set[int]]:
+        return {task: set(seeds.astype(np.int64).tolist()) for task, seeds in rows.groupby("task")[COL_SEED]}
+
+    return seeds_by_task(this_round[~by_policy]), seeds_by_task(this_round[by_policy])

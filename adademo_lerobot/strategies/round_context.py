@@ -22,7 +22,7 @@ from adademo_lerobot.dataset.shard_merge import ShardMerger
 from adademo_lerobot.dataset.shards import Shard, remove_shards, shard_folder
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import Executor, Pending
-from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_demos, demo_entry
+from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_answers, demo_entry
 from adademo_lerobot.suites.base import TaskSuite, full_state_step
 
 # A task whose expert keeps failing stops after this many fresh initial states per requested demo.
@@ -77,9 +77,8 @@ class OrderedAppender:
         before_commit: Callable[[], None] | None = None,
     ):
         self.dataset, self.suite = dataset, suite
-        self.before_commit = (
-            before_commit  # e.g. the journal's entries made durable before the demos they count
-        )
+        # e.g. the journal's entries made durable before the demos they count
+        self.before_commit = before_commit
         self.round_index, self.source, self.collector = round_index, source, collector
         self.commit_every = max(1, commit_every)
         self.by_task = tasks is not None  # None: commit in the order demos arrive (one loop over all tasks)
@@ -175,8 +174,7 @@ class RoundContext(JournaledRound):
             self.suite.tasks if self.commit_by_task else None,
             self.journal.sync if self.journal else None,
         )
-        self._committed = committed_demos(self.dataset.root, self.round_index)
-        self._kept = committed_demos(self.dataset.root, self.round_index, by_policy=True)
+        self._committed, self._kept = committed_answers(self.dataset.root, self.round_index)
         if self.executor.writes_shards and self.dataset.can_merge(self.suite):
             folder = shard_folder(self.dataset.root, self.round_index)
             shutil.rmtree(folder, ignore_errors=True)  # a stopped run's shards: never merged, collected again
