@@ -3,14 +3,15 @@
     ~/.venvs/adademo-lerobot/bin/python benchmarks/expert_success.py --suite fetch     # 100 states per task
     ~/.venvs/adademo-lerobot/bin/python benchmarks/expert_success.py --suite adroit --states 20 --tasks door
     ~/.venvs/adademo-lerobot/bin/python benchmarks/expert_success.py --suite adroit --tasks pen,hammer \
-        --collector planner --planner samples=32,horizon=12       # the planning expert, with its fields
+        --collector planner --planner samples=32,threads=2       # the planning expert, with its fields
 
 Initial states are `suite.sample_initial_state(task, seed)` for seeds 0..states-1; each is given to the
 collector once (`max_attempts=1`, so no retries with action noise) within the suite's step limit (by default the
 envs' own: Fetch 50, Adroit 200, MetaWorld 300). Success is the suite's own rule (`info["is_success"]`; Adroit:
 DAPG's, goal achieved on more than 25 steps, Pen 20). Adroit Hammer has no scripted expert; the planner
 (`--collector planner`) acts on every task of a suite with full-state restore. Wall seconds are the whole
-command's on one process (torch and OpenMP at 1 thread: set OMP_NUM_THREADS=1 beside other jobs).
+command's on one process (per demonstration: the task's wall seconds, failed attempts included, over its
+successes; torch and OpenMP at 1 thread: set OMP_NUM_THREADS=1 beside other jobs).
 """
 
 from __future__ import annotations
@@ -80,11 +81,21 @@ def main() -> None:
                 mean_frames,
                 str(env_steps),
                 f"{seconds:.1f}",
+                f"{seconds / successes:.1f}" if successes else "-",
                 shown or "-",
             )
         )
 
-    header = ("task", "successes", "success rate", "mean demo frames", "env steps", "wall s", "failed seeds")
+    header = (
+        "task",
+        "successes",
+        "success rate",
+        "mean demo frames",
+        "env steps",
+        "wall s",
+        "wall s per demonstration",
+        "failed seeds",
+    )
     expert = "scripted experts" if args.collector == "scripted" else f"planner ({config})"
     print(
         f"{title} {expert}, seeds 0..{args.states - 1}, max_attempts={args.max_attempts}, "

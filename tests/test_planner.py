@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from adademo_lerobot.collectors import PlannerCollectorConfig, make_collector
+from adademo_lerobot.collectors.planner import smooth_noise
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites import AdroitSuiteConfig, MetaWorldSuiteConfig, make_suite
 
@@ -89,9 +90,102 @@ def test_planner_demonstrates_from_a_start_and_takes_over_mid_episode_determinis
         ("iterations", 0, "--collector.iterations must be >= 1"),
         ("noise", 0.0, "--collector.noise must be > 0"),
         ("temperature", -1.0, "--collector.temperature must be > 0"),
+        ("knot_steps", 0, "--collector.knot_steps must be >= 1"),
+        ("threads", 0, "--collector.threads must be >= 1"),
+        ("reward", "dense", "--collector.reward must be planning or env"),
     ],
 )
 def test_bad_planner_fields_are_refused(field, value, match):
     suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3"))
     with pytest.raises(AdaDemoError, match=match):
         PlannerCollectorConfig(**{field: value}).validate(suite)
+
+
+@pytest.fixture(scope="module")
+def adroit():
+    return make_suite(AdroitSuiteConfig(tasks="all"))
+
+
+def test_adroit_rollouts_in_c_score_exactly_the_envs_own_rewards(adroit):
+    rng = np.random.default_rng(0)
+    for task in adroit.tasks:
+        env = adroit.make_env(task, terminate_on_success=False)
+        env.reset(options={"initial_state": adroit.sample_initial_state(task, 4)})
+        steps(env, rng.uniform(-1, 1, (5, adroit.action_dim)))  # mid-episode, with contacts under way
+        # Outside the action box too: clipped as the env clips them.
+        sequences = rng.uniform(-1.2, 1.2, (3, 12, adroit.action_dim))
+        in_c = env.batched_rollouts(shaped=False).rewards(sequences)
+        planning = env.batched_rollouts(shaped=True, threads=2).rewards(sequences)
+        start = env.snapshot()
+        for k, actions in enumerate(sequences):
+            env.rewind(start)
+            stepped = [reward for _, _, reward, _ in steps(env, actions)]
+            np.testing.assert_allclose(in_c[k], stepped, rtol=0, atol=1e-12, err_msg=task)
+        # The planning reward pays for nearing the object (the v1 envs pay for leaving it): not the env's.
+        assert not np.allclose(planning, in_c), task
+        env.close()
+
+
+def test_smooth_noise_passes_through_its_knots_and_is_linear_between():
+    noise = smooth_noise(np.random.default_rng(1), 2000, 9, 3, 4, 0.3)
+    assert noise.shape == (2000, 9, 3)
+    np.testing.assert_allclose(noise[:, 2], (noise[:, 0] + noise[:, 4]) / 2)
+    np.testing.assert_allclose(noise[:, 7], 0.25 * noise[:, 4] + 0.75 * noise[:, 8])
+    assert abs(noise[:, [0, 4, 8]].std() - 0.3) < 0.01  # knots have the asked std
+    white = smooth_noise(np.random.default_rng(1), 2000, 9, 3, 1, 0.3)
+    assert abs(np.corrcoef(white[:, 0, 0], white[:, 1, 0])[0, 1]) < 0.1  # knot_steps=1: independent steps
+
+
+@pytest.mark.parametrize("task", ["hammer", "pen"])
+def test_planner_is_the_adroit_expert_that_had_none(adroit, task):
+    """Hammer had no expert and pen's scripted one succeeded on 25 % of starts: the planner demonstrates both
+    (rollouts in C), and plans the same with one thread or two."""
+    suite = make_suite(AdroitSuiteConfig(tasks=task))
+    name = suite.tasks[0]
+    collector = make_collector(PlannerCollectorConfig(max_attempts=1), suite)
+    result = collector.collect(name, suite.sample_initial_state(name, 0), 1)
+    demo = result.demonstration
+    assert demo is not None and result.failed_attempts == 0
+    assert len(demo.frames) < 120  # well inside the 200-step limit
+    env = suite.make_env(name, terminate_on_success=False)
+    unused = np.setdiff1d(np.arange(suite.action_dim), env.used_action_dims)
+    assert all(not frame["action"][unused].any() for frame in demo.frames)  # ignored dims stay zero
+    env.reset(options={"initial_state": suite.sample_initial_state(name, 1)})
+    steps(env, np.random.default_rng(2).uniform(-1, 1, (3, suite.action_dim)))
+    state = env.get_state()
+    threaded = make_collector(PlannerCollectorConfig(max_attempts=1, threads=2), suite)
+    np.testing.assert_array_equal(
+        collector.expert_first_action(name)(None, state), threaded.expert_first_action(name)(None, state)
+    )
+    collector.close()
+    threaded.close()
+    env.close()
+
+
+def test_scripted_tasks_keep_their_scripted_expert_beside_the_planner():
+    from adademo_lerobot.collectors import ScriptedCollectorConfig
+
+    suite = make_suite(AdroitSuiteConfig(tasks="door,hammer"))
+    config = PlannerCollectorConfig(max_attempts=1, scripted_tasks="door")
+    mixed = make_collector(config, suite)
+    assert mixed.name == config.expert_name(suite) == "adroit-planner+scripted:door"
+    door = suite.tasks[0]
+    initial = suite.sample_initial_state(door, 0)
+    demo = mixed.collect(door, initial, 0).demonstration
+    scripted = make_collector(
+        ScriptedCollectorConfig(max_attempts=1), make_suite(AdroitSuiteConfig(tasks="door"))
+    )
+    alone = scripted.collect(door, initial, 0).demonstration
+    assert demo is not None and len(demo.frames) == len(alone.frames)
+    for a, b in zip(demo.frames, alone.frames, strict=True):
+        np.testing.assert_array_equal(a["action"], b["action"])
+    mixed.close()
+    scripted.close()
+    with pytest.raises(AdaDemoError, match="scripted_tasks: AdroitHandPen-v1 not among this run's tasks"):
+        make_collector(PlannerCollectorConfig(scripted_tasks="pen"), suite)
+    with pytest.raises(AdaDemoError, match="acts only from an episode's start"):
+        config.check_acts_mid_episode(suite)
+    with pytest.raises(
+        AdaDemoError, match="scripted_tasks=hammer: no scripted Adroit expert for AdroitHandHammer"
+    ):
+        make_collector(PlannerCollectorConfig(scripted_tasks="hammer"), suite)

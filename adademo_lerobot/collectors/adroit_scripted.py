@@ -18,8 +18,9 @@ pitch works as a fast vertical axis while the wrist keeps the palm level.
 - Door: press the handle down with the open palm (and push the bar past vertical) to undo the latch, roll the
   hand 90 degrees so the closed fingers wrap the now vertical bar, pull the door along its arc about the hinge,
   let go at 0.8 rad and step back while the door swings on to its stop.
-- Pen: a weak baseline (wrist tilt only, no finger gaiting).
-- Hammer: no scripted expert (`--collector.type=policy` takes a trained one).
+- Pen: a weak baseline (wrist tilt only, no finger gaiting); the planner (`--collector.type=planner`) is the pen's
+  expert.
+- Hammer: no scripted expert; the planner is the hammer's expert.
 
 Measured success: benchmarks/results/adroit_expert_success.md.
 """
@@ -364,7 +365,7 @@ def pen_expert(kin: Kinematics) -> Callable[[dict], np.ndarray]:
 
 
 # Hammer has no scripted expert: its arm can only pitch and yaw (no translation), and picking the hammer up
-# and striking the nail was not solved; use `--collector.type=policy` with a trained policy instead.
+# and striking the nail was not solved by hand; the planner (`--collector.type=planner`) does it.
 EXPERTS = {
     "AdroitHandDoor-v1": door_expert,
     "AdroitHandPen-v1": pen_expert,
@@ -384,7 +385,8 @@ class AdroitScriptedExpert(SimulatedExpertCollector):
         if missing:
             raise AdaDemoError(
                 f"no scripted Adroit expert for {', '.join(missing)} (scripted: {', '.join(EXPERTS)}); use "
-                f"--collector.type=policy --collector.path=CHECKPOINT (a LeRobot checkpoint or a TorchScript file)"
+                f"--collector.type=planner (plans with the simulator) or --collector.type=policy "
+                f"--collector.path=CHECKPOINT"
             )
         self._kinematics: dict[str, Kinematics] = {}
 

@@ -1,10 +1,13 @@
 """`--collector.type=planner`: an expert that plans with the simulator (predictive sampling with MPPI weights).
 
-At every step it samples `samples` action sequences around its current plan (Gaussian noise of std `noise`; the
-plan itself is one of them), rolls each out for `horizon` steps from the current state, restored exactly in a
-second copy of the task's env, and scores it by the task's own reward summed over the rollout. The plan moves to
-the reward-weighted mean of the samples, with weights exp((R - max R) / (temperature x std R)) (MPPI; `iterations`
-times per step), the first action is executed and the plan shifts by one step.
+At every step it samples `samples` action sequences around its current plan (Gaussian noise of std `noise`, drawn
+every `knot_steps` steps and interpolated linearly in between, so a sequence moves smoothly; the plan itself is
+one of them), rolls each out for `horizon` steps from the current state, restored exactly in a second copy of the
+task's env, and scores it by the task's reward summed over the rollout. Where the task env offers rollouts in C
+(`batched_rollouts`: Adroit) they run there, scored by the task's planning reward (`reward=planning`, see
+suites/adroit_rewards.py) or its own (`reward=env`); elsewhere through the env's own step and reward. The plan
+moves to the reward-weighted mean of the samples, with weights exp((R - max R) / (temperature x std R)) (MPPI;
+`iterations` times per step), the first action is executed and the plan shifts by one step.
 
 It needs only what every suite here with full-state restore has (MetaWorld, Fetch, Adroit): a state to restore
 at any step and a reward (dense rewards plan best: Fetch's is sparse). It acts from any state, so it also takes
@@ -14,6 +17,7 @@ state gives the same action wherever it runs (Ray == local).
 
 from __future__ import annotations
 
+import dataclasses
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,8 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from adademo_lerobot.collectors.base import CollectorConfig, SimulatedExpertCollector
+from adademo_lerobot.collectors.scripted import SCRIPTED_EXPERTS
 from adademo_lerobot.core.errors import AdaDemoError
-from adademo_lerobot.suites.base import TaskSuite, cached_for_task
+from adademo_lerobot.suites import make_suite
+from adademo_lerobot.suites.base import TaskSuite, cached_for_task, split_task_list
 
 
 @CollectorConfig.register_subclass("planner")
@@ -36,31 +42,50 @@ class PlannerCollectorConfig(CollectorConfig):
     # Action sequences sampled around the plan at every step (one of them is the plan itself).
     samples: int = 32
     # Steps each sampled sequence is rolled out for (its reward is summed over them).
-    horizon: int = 12
+    horizon: int = 16
+    # Steps between the noise's knots (linear in between); 1 = independent noise at every step.
+    knot_steps: int = 4
     # Sample-and-reweight passes per executed step.
     iterations: int = 1
     # Std of the Gaussian noise around the plan, in the [-1, 1] action box.
     noise: float = 0.3
     # MPPI temperature, relative to the spread (std) of the sampled returns: small picks the best sample.
     temperature: float = 0.1
+    # `planning`: the suite's planning reward where it has one (Adroit), else the env's; `env`: the env's own.
+    reward: str = "planning"
+    # Threads for rollouts in C (Adroit); 1 keeps a planner to one core (Ray workers run one each).
+    threads: int = 1
+    # Tasks the suite's scripted expert demonstrates instead, comma-separated (Adroit: door,relocate, where it
+    # does better than the planner); the others are planned.
+    scripted_tasks: str | None = None
 
     def check_fields(self) -> None:
-        for name in ("samples", "horizon", "iterations"):
+        for name in ("samples", "horizon", "iterations", "knot_steps", "threads"):
             if getattr(self, name) < 1:
                 raise AdaDemoError(f"--collector.{name} must be >= 1, got {getattr(self, name)}")
         if not self.noise > 0:
             raise AdaDemoError(f"--collector.noise must be > 0, got {self.noise}")
         if not self.temperature > 0:
             raise AdaDemoError(f"--collector.temperature must be > 0, got {self.temperature}")
+        if self.reward not in ("planning", "env"):
+            raise AdaDemoError(f"--collector.reward must be planning or env, got {self.reward!r}")
 
     def build(self, suite: TaskSuite) -> PlannerExpert:
         return PlannerExpert(suite, self)
 
     def expert_name(self, suite: TaskSuite) -> str:
-        return f"{suite.name}-planner"
+        return f"{suite.name}-planner" + (f"+scripted:{self.scripted_tasks}" if self.scripted_tasks else "")
 
     def expert_class(self, suite: TaskSuite) -> type:
         return PlannerExpert
+
+    def check_acts_mid_episode(self, suite: TaskSuite) -> None:
+        scripted = SCRIPTED_EXPERTS.get(suite.name)
+        if self.scripted_tasks and scripted is not None and not scripted.acts_mid_episode:
+            raise AdaDemoError(
+                f"--demo_start=takeover: the scripted expert of --collector.scripted_tasks={self.scripted_tasks} "
+                "acts only from an episode's start; leave --collector.scripted_tasks empty to plan every task"
+            )
 
 
 class PlannerExpert(SimulatedExpertCollector):
@@ -74,8 +99,35 @@ class PlannerExpert(SimulatedExpertCollector):
                 f"{suite.name!r} restores initial states only: use --collector.type=scripted, callable or policy"
             )
         super().__init__(suite, config)
-        self.name = f"{suite.name}-planner"
+        self.name = config.expert_name(suite)
         self._planning_envs: dict = {}
+        self._scripted = self._scripted_expert(suite, config)
+
+    @staticmethod
+    def _scripted_expert(suite: TaskSuite, config: PlannerCollectorConfig) -> SimulatedExpertCollector | None:
+        """The suite's scripted expert for `config.scripted_tasks` (None if none are), refused in one line if it
+        has none for them."""
+        if not config.scripted_tasks:
+            return None
+        names = suite.canonical_task_names(split_task_list(config.scripted_tasks))
+        unknown = [t for t in names if t not in suite.tasks]
+        if unknown:
+            raise AdaDemoError(
+                f"--collector.scripted_tasks: {', '.join(unknown)} not among this run's tasks "
+                f"({', '.join(suite.tasks)})"
+            )
+        if suite.name not in SCRIPTED_EXPERTS:
+            raise AdaDemoError(f"--collector.scripted_tasks: suite {suite.name!r} has no scripted expert")
+        # Built for a suite of those tasks only (it refuses one with a task it has no controller for); its
+        # controllers read the observation at fixed indices, so they act on this suite's envs as they are.
+        only = make_suite(dataclasses.replace(suite.config, tasks=",".join(names)))
+        try:
+            return SCRIPTED_EXPERTS[suite.name](only, config)
+        except AdaDemoError as error:
+            refusal = str(error).split(";")[0]  # its advice (use the planner) does not apply here
+            raise AdaDemoError(
+                f"--collector.scripted_tasks={config.scripted_tasks}: {refusal}; leave those tasks out to plan them"
+            ) from None
 
     def _planning_env(self, task: str):
         return cached_for_task(
@@ -83,22 +135,22 @@ class PlannerExpert(SimulatedExpertCollector):
         )
 
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]:
+        if self._scripted is not None and task in self._scripted.suite.tasks:
+            return self._scripted.expert_for(task)
         acting = self._env(task).unwrapped
-        return self._acting_from(task, lambda: acting.get_state())
+        return self._acting_from(task, acting)
 
     def expert_first_action(self, task: str) -> Callable[[dict, np.ndarray], np.ndarray]:
         return lambda observation, state: self.plan(task, np.asarray(state, np.float64), self._empty_plan())[
             0
         ]
 
-    def _acting_from(
-        self, task: str, current_state: Callable[[], np.ndarray]
-    ) -> Callable[[dict], np.ndarray]:
+    def _acting_from(self, task: str, acting) -> Callable[[dict], np.ndarray]:
         plan = self._empty_plan()
 
         def act(observation: dict) -> np.ndarray:
             nonlocal plan
-            plan = self.plan(task, current_state(), plan)
+            plan = self.plan(task, acting.get_state(), plan, acting)
             action = plan[0].copy()
             plan = np.concatenate([plan[1:], plan[-1:]])  # receding horizon: the rest of the plan, shifted
             return action
@@ -108,21 +160,26 @@ class PlannerExpert(SimulatedExpertCollector):
     def _empty_plan(self) -> np.ndarray:
         return np.zeros((self.config.horizon, self.suite.action_dim))
 
-    def plan(self, task: str, state: np.ndarray, plan: np.ndarray) -> np.ndarray:
-        """`plan` improved from `state`: the reward-weighted mean of sequences sampled around it."""
+    def plan(self, task: str, state: np.ndarray, plan: np.ndarray, acting=None) -> np.ndarray:
+        """`plan` improved from `state`: the reward-weighted mean of sequences sampled around it. Given the env
+        `acting` in that state, rollouts in C start from it directly (they leave it as it is, and start from its
+        exact state, the solver's warm start included, which a restore resets)."""
         cfg: PlannerCollectorConfig = self.config
-        env = self._planning_env(task)
-        env.reset(options={"state": state})
-        start = env.snapshot()
+        if acting is not None and hasattr(acting, "batched_rollouts"):
+            env = acting
+        else:
+            env = self._planning_env(task)
+            env.reset(options={"state": state})
+        returns_of = self._returns_from_here(env)
+        used = getattr(env, "used_action_dims", None)  # dims the task ignores stay at the plan's (zero)
         rng = np.random.default_rng(zlib.crc32(np.ascontiguousarray(state).tobytes()))
         for _ in range(cfg.iterations):
-            noise = rng.normal(0.0, cfg.noise, (cfg.samples, *plan.shape))
+            noise = smooth_noise(rng, cfg.samples, cfg.horizon, plan.shape[1], cfg.knot_steps, cfg.noise)
             noise[0] = 0.0
+            if used is not None:
+                noise[..., np.setdiff1d(np.arange(plan.shape[1]), used)] = 0.0
             candidates = np.clip(plan + noise, -1.0, 1.0)
-            returns = np.empty(cfg.samples)
-            for k, actions in enumerate(candidates):
-                env.rewind(start)
-                returns[k] = sum(env.step(a)[1] for a in actions)
+            returns = returns_of(candidates)
             spread = returns.std()
             if spread == 0:
                 continue  # no sample is better than another: keep the plan
@@ -130,8 +187,39 @@ class PlannerExpert(SimulatedExpertCollector):
             plan = np.tensordot(weights / weights.sum(), candidates, axes=1)
         return plan
 
+    def _returns_from_here(self, env) -> Callable[[np.ndarray], np.ndarray]:
+        """Summed rewards of candidate sequences from `env`'s current state: in C where the env can, else by
+        stepping and rewinding the env itself."""
+        cfg: PlannerCollectorConfig = self.config
+        if hasattr(env, "batched_rollouts"):
+            rollouts = env.batched_rollouts(shaped=cfg.reward == "planning", threads=cfg.threads)
+            return lambda candidates: rollouts.rewards(candidates).sum(axis=1)
+        start = env.snapshot()
+
+        def stepped(candidates: np.ndarray) -> np.ndarray:
+            returns = np.empty(len(candidates))
+            for k, actions in enumerate(candidates):
+                env.rewind(start)
+                returns[k] = sum(env.step(a)[1] for a in actions)
+            return returns
+
+        return stepped
+
     def close(self) -> None:
         super().close()
+        if self._scripted is not None:
+            self._scripted.close()
         for env in self._planning_envs.values():
             env.close()
         self._planning_envs.clear()
+
+
+def smooth_noise(
+    rng: np.random.Generator, samples: int, horizon: int, dim: int, knot_steps: int, std: float
+) -> np.ndarray:
+    """(samples, horizon, dim) Gaussian noise of std `std` at knots `knot_steps` apart, linear in between."""
+    knots = rng.normal(0.0, std, (samples, (horizon - 1) // knot_steps + 2, dim))
+    position = np.arange(horizon) / knot_steps
+    left = np.floor(position).astype(int)
+    fraction = (position - left)[None, :, None]
+    return knots[:, left] * (1 - fraction) + knots[:, left + 1] * fraction

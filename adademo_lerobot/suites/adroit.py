@@ -61,6 +61,7 @@ import mujoco
 import numpy as np
 
 from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.suites.adroit_rewards import reward_function
 from adademo_lerobot.suites.base import SuiteConfig
 from adademo_lerobot.suites.gym_robotics import (
     DEFAULT_CAMERA,
@@ -69,6 +70,7 @@ from adademo_lerobot.suites.gym_robotics import (
     checked_state,
     make_raw_env,
 )
+from adademo_lerobot.suites.mujoco_rollouts import BatchedRollouts
 
 # Canonical task names (stored in config.tasks, one-hot order follows the requested order) and short aliases.
 TASKS = ["AdroitHandDoor-v1", "AdroitHandHammer-v1", "AdroitHandPen-v1", "AdroitHandRelocate-v1"]
@@ -234,6 +236,7 @@ class AdroitTaskEnv(GymRoboticsTaskEnv):
         self.success_steps = SUCCESS_STEPS[task]
         self._goal_steps = 0
         self._goal_achieved = False
+        self._batched: dict[tuple[bool, int], BatchedRollouts] = {}
 
     @property
     def goal_achieved_steps(self) -> int:
@@ -260,6 +263,29 @@ class AdroitTaskEnv(GymRoboticsTaskEnv):
         obs, reward, terminated, truncated, info = super().step(action)
         info["goal_achieved"] = self._goal_achieved
         return obs, reward, terminated, truncated, info
+
+    @property
+    def used_action_dims(self) -> np.ndarray:
+        """The dimensions of the 30-D unified action this task's hand has (the others are ignored)."""
+        return self.native_index
+
+    def batched_rollouts(self, shaped: bool, threads: int = 1) -> BatchedRollouts:
+        """This task's rollouts in C from the current state, scored by its reward (`shaped`: the planner's, of
+        the state each step reaches, see adroit_rewards; else exactly the env's own).
+        """
+        key = (shaped, threads)
+        if key not in self._batched:
+            reward_of = reward_function(self.task, self._raw, shaped)
+            self._batched[key] = BatchedRollouts(
+                self._raw, self.native_index, reward_of, threads, as_env_reads=not shaped
+            )
+        return self._batched[key]
+
+    def close(self):
+        for rollouts in self._batched.values():
+            rollouts.close()
+        self._batched.clear()
+        super().close()
 
     def _layout(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         joints = np.zeros(JOINT_DIM, dtype=np.float64)
