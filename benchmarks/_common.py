@@ -88,6 +88,15 @@ def machine_line() -> str:
     )
 
 
+def planner_config(fields: str, **extra):
+    """The planner's config from "samples=16,horizon=8,..." (each value typed as its field's default)."""
+    from adademo_lerobot.collectors import PlannerCollectorConfig
+
+    pairs = dict(kv.split("=") for kv in fields.split(",") if kv)
+    typed = {k: type(getattr(PlannerCollectorConfig(), k))(v) for k, v in pairs.items()}
+    return PlannerCollectorConfig(**extra, **typed)
+
+
 def grow_dataset(root: Path, episodes: int, tasks: str = "reach-v3,push-v3", unique: int = 10):
     """An adademo dataset of `episodes` real scripted demos (`unique` per task collected, then rewritten under
     new seeds). Returns (DemoDataset, suite, collector, demos)."""

@@ -20,8 +20,9 @@ import argparse
 import time
 
 import numpy as np
+from _common import planner_config
 
-from adademo_lerobot.collectors import PlannerCollectorConfig, ScriptedCollectorConfig, make_collector
+from adademo_lerobot.collectors import ScriptedCollectorConfig, make_collector
 from adademo_lerobot.suites import SuiteConfig, make_suite
 
 DEFAULTS = {  # suite -> (tasks, max_episode_steps, title)
@@ -52,9 +53,7 @@ def main() -> None:
     )
     suite = make_suite(config)
     if args.collector == "planner":
-        fields = dict(kv.split("=") for kv in args.planner.split(",") if kv)
-        typed = {k: type(getattr(PlannerCollectorConfig(), k))(v) for k, v in fields.items()}
-        config = PlannerCollectorConfig(max_attempts=args.max_attempts, **typed)
+        config = planner_config(args.planner, max_attempts=args.max_attempts)
     else:
         config = ScriptedCollectorConfig(max_attempts=args.max_attempts)
     collector = make_collector(config, suite)

@@ -189,3 +189,51 @@ def test_scripted_tasks_keep_their_scripted_expert_beside_the_planner():
         AdaDemoError, match="scripted_tasks=hammer: no scripted Adroit expert for AdroitHandHammer"
     ):
         make_collector(PlannerCollectorConfig(scripted_tasks="hammer"), suite)
+
+
+def test_scripted_first_plans_only_where_the_scripted_expert_fails():
+    from adademo_lerobot.collectors import ScriptedCollectorConfig
+
+    # drawer-close-v3 from seed 2: the scripted expert needs ~80 steps, the planner ~25: a 50-step limit
+    # leaves the scripted attempt failing and the planned one succeeding.
+    suite = make_suite(MetaWorldSuiteConfig(tasks="drawer-close-v3", max_episode_steps=50))
+    task = suite.tasks[0]
+    initial = suite.sample_initial_state(task, 2)
+    small = {"samples": 8, "horizon": 6, "max_attempts": 1}
+    both = make_collector(PlannerCollectorConfig(scripted_first=True, **small), suite)
+    assert both.name == "metaworld-scripted+planner"
+    scripted = make_collector(ScriptedCollectorConfig(max_attempts=1), suite)
+    assert scripted.collect(task, initial, 2).demonstration is None
+    rescued = both.collect(task, initial, 2)
+    assert (
+        rescued.attempts == 2 and rescued.failed_attempts == 1
+    )  # the scripted attempt, then the planned one
+    planned = make_collector(PlannerCollectorConfig(**small), suite).collect(task, initial, 2).demonstration
+    assert rescued.demonstration is not None and len(rescued.demonstration.frames) == len(planned.frames)
+    for a, b in zip(rescued.demonstration.frames, planned.frames, strict=True):
+        np.testing.assert_array_equal(a["action"], b["action"])
+    obs = {"environment_state": np.asarray(planned.frames[0]["observation.environment_state"], np.float64)}
+    np.testing.assert_array_equal(
+        both.expert_first_action(task)(obs, None), scripted.expert_first_action(task)(obs, None)
+    )
+    # Where the scripted expert succeeds, it alone acts.
+    roomy = make_suite(MetaWorldSuiteConfig(tasks="drawer-close-v3"))
+    first = make_collector(PlannerCollectorConfig(scripted_first=True, **small), roomy).collect(
+        task, initial, 2
+    )
+    alone = (
+        make_collector(ScriptedCollectorConfig(max_attempts=1), roomy).collect(task, initial, 2).demonstration
+    )
+    assert first.attempts == 1 and len(first.demonstration.frames) == len(alone.frames) > 50
+    for a, b in zip(first.demonstration.frames, alone.frames, strict=True):
+        np.testing.assert_array_equal(a["action"], b["action"])
+    # A task in --collector.scripted_tasks keeps the scripted expert alone: no planned attempt after it.
+    only = PlannerCollectorConfig(scripted_first=True, scripted_tasks="drawer-close-v3", **small)
+    kept = make_collector(only, suite)
+    assert kept.name == "metaworld-scripted+planner+scripted-only:drawer-close-v3"
+    unplanned = kept.collect(task, initial, 2)
+    assert unplanned.demonstration is None and unplanned.attempts == 1
+    with pytest.raises(AdaDemoError, match="scripted_first=true acts only from an episode's start"):
+        PlannerCollectorConfig(scripted_first=True).check_acts_mid_episode(
+            make_suite(AdroitSuiteConfig(tasks="door"))
+        )

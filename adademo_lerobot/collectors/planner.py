@@ -12,7 +12,9 @@ moves to the reward-weighted mean of the samples, with weights exp((R - max R) /
 It needs only what every suite here with full-state restore has (MetaWorld, Fetch, Adroit): a state to restore
 at any step and a reward (dense rewards plan best: Fetch's is sparse). It acts from any state, so it also takes
 over failed rollouts (`--demo_start=takeover`). Its random draws come from the state it plans from, so the same
-state gives the same action wherever it runs (Ray == local).
+state gives the same action wherever it runs (Ray == local). With `scripted_first` it is the fallback of the suite's
+scripted expert: the planner makes one attempt where the scripted attempts failed (on MetaWorld, from the takeover
+states a failing policy leaves, where the scripted controllers, written for starts, often fail).
 """
 
 from __future__ import annotations
@@ -55,9 +57,12 @@ class PlannerCollectorConfig(CollectorConfig):
     reward: str = "planning"
     # Threads for rollouts in C (Adroit); 1 keeps a planner to one core (Ray workers run one each).
     threads: int = 1
-    # Tasks the suite's scripted expert demonstrates instead, comma-separated (Adroit: door,relocate, where it
-    # does better than the planner); the others are planned.
+    # Tasks the suite's scripted expert demonstrates alone, comma-separated (Adroit: door,relocate, where it
+    # does better than the planner); the others are planned (or, with scripted_first, get the planner after it).
     scripted_tasks: str | None = None
+    # The suite's scripted expert makes each demonstration's attempts first; where they all fail, the planner
+    # makes one attempt more from the same start, a takeover state included (MetaWorld's corrections).
+    scripted_first: bool = False
 
     def check_fields(self) -> None:
         for name in ("samples", "horizon", "iterations", "knot_steps", "threads"):
@@ -74,6 +79,9 @@ class PlannerCollectorConfig(CollectorConfig):
         return PlannerExpert(suite, self)
 
     def expert_name(self, suite: TaskSuite) -> str:
+        if self.scripted_first:
+            alone = f"+scripted-only:{self.scripted_tasks}" if self.scripted_tasks else ""
+            return f"{suite.name}-scripted+planner{alone}"
         return f"{suite.name}-planner" + (f"+scripted:{self.scripted_tasks}" if self.scripted_tasks else "")
 
     def expert_class(self, suite: TaskSuite) -> type:
@@ -81,10 +89,15 @@ class PlannerCollectorConfig(CollectorConfig):
 
     def check_acts_mid_episode(self, suite: TaskSuite) -> None:
         scripted = SCRIPTED_EXPERTS.get(suite.name)
-        if self.scripted_tasks and scripted is not None and not scripted.acts_mid_episode:
+        if (
+            (self.scripted_tasks or self.scripted_first)
+            and scripted is not None
+            and not scripted.acts_mid_episode
+        ):
+            flag = "scripted_first=true" if self.scripted_first else f"scripted_tasks={self.scripted_tasks}"
             raise AdaDemoError(
-                f"--demo_start=takeover: the scripted expert of --collector.scripted_tasks={self.scripted_tasks} "
-                "acts only from an episode's start; leave --collector.scripted_tasks empty to plan every task"
+                f"--demo_start=takeover: the scripted expert of --collector.{flag} acts only from an episode's "
+                "start; leave --collector.scripted_tasks empty and scripted_first false to plan every task"
             )
 
 
@@ -101,23 +114,38 @@ class PlannerExpert(SimulatedExpertCollector):
         super().__init__(suite, config)
         self.name = config.expert_name(suite)
         self._planning_envs: dict = {}
-        self._scripted = self._scripted_expert(suite, config)
+        alone = self._scripted_task_names(suite, config)
+        self._scripted_alone = set(alone)
+        self._scripted = self._scripted_expert(suite, config, alone)
+        self._planning_after_scripted = False  # scripted_first: set while the planner makes its one attempt
 
     @staticmethod
-    def _scripted_expert(suite: TaskSuite, config: PlannerCollectorConfig) -> SimulatedExpertCollector | None:
-        """The suite's scripted expert for `config.scripted_tasks` (None if none are), refused in one line if it
-        has none for them."""
-        if not config.scripted_tasks:
-            return None
-        names = suite.canonical_task_names(split_task_list(config.scripted_tasks))
+    def _scripted_task_names(suite: TaskSuite, config: PlannerCollectorConfig) -> list[str]:
+        """`--collector.scripted_tasks` by the suite's task names, refused in one line if not among its tasks."""
+        names = suite.canonical_task_names(split_task_list(config.scripted_tasks or ""))
         unknown = [t for t in names if t not in suite.tasks]
         if unknown:
             raise AdaDemoError(
                 f"--collector.scripted_tasks: {', '.join(unknown)} not among this run's tasks "
                 f"({', '.join(suite.tasks)})"
             )
+        return names
+
+    @staticmethod
+    def _scripted_expert(
+        suite: TaskSuite, config: PlannerCollectorConfig, alone: list[str]
+    ) -> SimulatedExpertCollector | None:
+        """The suite's scripted expert for the tasks it demonstrates `alone` (every task with `scripted_first`;
+        None if neither is set), refused in one line if it has none for them."""
+        if config.scripted_first:
+            names, flag = list(suite.tasks), "scripted_first=true"
+        elif alone:
+            names = alone
+            flag = f"scripted_tasks={config.scripted_tasks}"
+        else:
+            return None
         if suite.name not in SCRIPTED_EXPERTS:
-            raise AdaDemoError(f"--collector.scripted_tasks: suite {suite.name!r} has no scripted expert")
+            raise AdaDemoError(f"--collector.{flag}: suite {suite.name!r} has no scripted expert")
         # Built for a suite of those tasks only (it refuses one with a task it has no controller for); its
         # controllers read the observation at fixed indices, so they act on this suite's envs as they are.
         only = make_suite(dataclasses.replace(suite.config, tasks=",".join(names)))
@@ -125,9 +153,12 @@ class PlannerExpert(SimulatedExpertCollector):
             return SCRIPTED_EXPERTS[suite.name](only, config)
         except AdaDemoError as error:
             refusal = str(error).split(";")[0]  # its advice (use the planner) does not apply here
-            raise AdaDemoError(
-                f"--collector.scripted_tasks={config.scripted_tasks}: {refusal}; leave those tasks out to plan them"
-            ) from None
+            advice = (
+                "it needs the scripted expert of every task"
+                if config.scripted_first
+                else "leave those tasks out to plan them"
+            )
+            raise AdaDemoError(f"--collector.{flag}: {refusal}; {advice}") from None
 
     def _planning_env(self, task: str):
         return cached_for_task(
@@ -135,12 +166,27 @@ class PlannerExpert(SimulatedExpertCollector):
         )
 
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]:
-        if self._scripted is not None and task in self._scripted.suite.tasks:
+        scripted = self._scripted is not None and task in self._scripted.suite.tasks
+        if scripted and not self._planning_after_scripted:
             return self._scripted.expert_for(task)
         acting = self._env(task).unwrapped
         return self._acting_from(task, acting)
 
+    def _attempts(self, env, task: str, result, start: dict, n: int, correction_from) -> bool:
+        """With `scripted_first`: the scripted expert's n attempts, then, where they all fail, one planned attempt
+        (counted as one attempt more; not on `scripted_tasks`, which the scripted expert demonstrates alone)."""
+        found = super()._attempts(env, task, result, start, n, correction_from)
+        if found or not self.config.scripted_first or task in self._scripted_alone:
+            return found
+        self._planning_after_scripted = True
+        try:
+            return super()._attempts(env, task, result, start, 1, correction_from)
+        finally:
+            self._planning_after_scripted = False
+
     def expert_first_action(self, task: str) -> Callable[[dict, np.ndarray], np.ndarray]:
+        if self.config.scripted_first:  # the disagreement rule asks the expert that acts first
+            return self._scripted.expert_first_action(task)
         return lambda observation, state: self.plan(task, np.asarray(state, np.float64), self._empty_plan())[
             0
         ]
