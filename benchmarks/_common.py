@@ -92,9 +92,16 @@ def planner_config(fields: str, **extra):
     """The planner's config from "samples=16,horizon=8,..." (each value typed as its field's default)."""
     from adademo_lerobot.collectors import PlannerCollectorConfig
 
+    defaults = PlannerCollectorConfig()
+
+    def typed(name: str, text: str):
+        default = getattr(defaults, name)
+        if isinstance(default, bool):  # bool("false") is True
+            return {"true": True, "false": False}[text.lower()]
+        return text if default is None else type(default)(text)
+
     pairs = dict(kv.split("=") for kv in fields.split(",") if kv)
-    typed = {k: type(getattr(PlannerCollectorConfig(), k))(v) for k, v in pairs.items()}
-    return PlannerCollectorConfig(**extra, **typed)
+    return PlannerCollectorConfig(**extra, **{k: typed(k, v) for k, v in pairs.items()})
 
 
 def grow_dataset(root: Path, episodes: int, tasks: str = "reach-v3,push-v3", unique: int = 10):

@@ -56,10 +56,7 @@ def main() -> None:
         seeds = [expansion_state_seed(args.seed, 1, task, k) for k in range(args.episodes)]
         failed = [(r, tr) for r, tr in evaluator.run_traced(task, seeds) if not r.success]
         outcome = {"scripted": [], "planner": []}  # per failed rollout: frames of the correction, or None
-        spent = {
-            "scripted": [],
-            "planner": [],
-        }  # per failed rollout: expert steps, a failed attempt's included
+        spent = {"scripted": [], "planner": []}  # per failed rollout: expert steps, failed attempts included
         steps, planner_seconds = [], 0.0
         for record, trace in failed:
             point = choose_takeover(trace, TakeoverArgs(), scripted.expert_first_action(task))
@@ -74,28 +71,23 @@ def main() -> None:
                 demo = result.demonstration
                 outcome[name].append(None if demo is None else len(demo.frames))
                 spent[name].append(result.env_steps)
-        either = [
+        both = "scripted, then the planner"
+        outcome[both] = [
             s if s is not None else p for s, p in zip(outcome["scripted"], outcome["planner"], strict=True)
         ]
         # the planner acts only after the scripted attempt failed, which spent its steps first
-        spent["scripted, then the planner"] = [
+        spent[both] = [
             s + (p if f is None else 0)
             for s, p, f in zip(spent["scripted"], spent["planner"], outcome["scripted"], strict=True)
         ]
-        made = {
-            "scripted": outcome["scripted"],
-            "planner": outcome["planner"],
-            "scripted, then the planner": either,
-        }
         rows.append(
             [
                 task,
                 f"{len(failed)}/{len(seeds)}",
                 f"{np.mean(steps):.0f}" if steps else "-",
-                *(finished(outcome[name]) for name in ("scripted", "planner")),
-                finished(either),
+                *(finished(outcome[name]) for name in outcome),
                 *(mean_frames(outcome[name]) for name in ("scripted", "planner")),
-                *(per_correction(spent[name], made[name]) for name in made),
+                *(per_correction(spent[name], outcome[name]) for name in outcome),
                 f"{planner_seconds / max(1, len(failed)):.1f}",
             ]
         )

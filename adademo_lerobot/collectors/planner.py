@@ -87,14 +87,16 @@ class PlannerCollectorConfig(CollectorConfig):
     def expert_class(self, suite: TaskSuite) -> type:
         return PlannerExpert
 
+    def scripted_flag(self) -> str | None:
+        """The flag that brings in the suite's scripted expert, as an error names it (None: neither is set)."""
+        if self.scripted_first:
+            return "scripted_first=true"
+        return f"scripted_tasks={self.scripted_tasks}" if self.scripted_tasks else None
+
     def check_acts_mid_episode(self, suite: TaskSuite) -> None:
         scripted = SCRIPTED_EXPERTS.get(suite.name)
-        if (
-            (self.scripted_tasks or self.scripted_first)
-            and scripted is not None
-            and not scripted.acts_mid_episode
-        ):
-            flag = "scripted_first=true" if self.scripted_first else f"scripted_tasks={self.scripted_tasks}"
+        flag = self.scripted_flag()
+        if flag and scripted is not None and not scripted.acts_mid_episode:
             raise AdaDemoError(
                 f"--demo_start=takeover: the scripted expert of --collector.{flag} acts only from an episode's "
                 "start; leave --collector.scripted_tasks empty and scripted_first false to plan every task"
@@ -137,13 +139,10 @@ class PlannerExpert(SimulatedExpertCollector):
     ) -> SimulatedExpertCollector | None:
         """The suite's scripted expert for the tasks it demonstrates `alone` (every task with `scripted_first`;
         None if neither is set), refused in one line if it has none for them."""
-        if config.scripted_first:
-            names, flag = list(suite.tasks), "scripted_first=true"
-        elif alone:
-            names = alone
-            flag = f"scripted_tasks={config.scripted_tasks}"
-        else:
+        flag = config.scripted_flag()
+        if flag is None:
             return None
+        names = list(suite.tasks) if config.scripted_first else alone
         if suite.name not in SCRIPTED_EXPERTS:
             raise AdaDemoError(f"--collector.{flag}: suite {suite.name!r} has no scripted expert")
         # Built for a suite of those tasks only (it refuses one with a task it has no controller for); its
