@@ -28,6 +28,8 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     costed, costed_knn budgeted + --strategy.rollout_cost=1 (rollouts paid from the budget), random or k-NN states
     costed_w5          costed with --strategy.failure_worth=5 (evaluates longer before it closes a task)
     costed_probe       costed with --strategy.probe_unsure=true (a task is probed before it gets nothing)
+    costed_split       costed_probe + --strategy.split_episodes=true (the round's budget, rollouts included, split
+                       across the tasks by expected failure rate instead of evaluating the weakest task first)
     costed_probe_keep  costed_probe + --keep_successes=true --train.autonomous_weight=1 (its successful
                        rollouts kept as data, each drawn as a demonstration)
 
@@ -113,6 +115,15 @@ ALL_ARMS = {
         "--strategy.rollout_cost=1",
         "--strategy.probe_unsure=true",
     ],
+    # costed_probe with the round's budget, rollouts included, split across the tasks by expected failure rate
+    # instead of evaluating the likeliest-failing task first (which gave most of a round to the weakest task).
+    "costed_split": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        "--strategy.rollout_cost=1",
+        "--strategy.probe_unsure=true",
+        "--strategy.split_episodes=true",
+    ],
     # costed_probe keeping its successful rollouts as data (no episode it did not run), each drawn as a
     # demonstration of its task: it runs ~7 rollouts per task in three rounds (benchmarks/results/mt10_cost.md), so
     # a strong task's few kept successes cannot take the weak tasks' share of training.
@@ -153,6 +164,7 @@ LABELS = {
     "costed_w5": "Budgeted paying for rollouts (cost 1, W = 5)",
     "costed_probe": "Budgeted paying for rollouts (cost 1, W = 3), probing unsure tasks",
     "costed_probe_keep": "costed_probe keeping its successful rollouts (each as a demonstration)",
+    "costed_split": "costed_probe splitting the round's episodes by expected failure",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",

@@ -478,3 +478,37 @@ def test_probing_keeps_a_task_that_succeeded_by_luck_from_getting_nothing():
     for task, r in probed.items():  # every demonstration at a failed state or a fresh one, as without probes
         assert all(ctx.outcomes[task][ctx._position[task][s]] == "F" for s in ctx.collected[task])
         assert r.demos_added == len(ctx.collected[task]) + len(ctx.fresh[task])
+
+
+def test_split_episodes_shares_the_round_by_expected_failure_instead_of_feeding_the_weakest_task():
+    """Greedy evaluation (the task with the highest optimistic failure rate first) gives almost the whole round to
+    the weakest task; --strategy.split_episodes splits the budget, rollouts included, by posterior mean failure
+    rate, so every task that fails gets a share and the weakest the largest; a solved task still closes."""
+    outcomes = {
+        "solved": "S" * 100,
+        "weak": "FSFFSFFSFFSFFSFF" * 6,
+        "mid": "SFSSF" * 20,
+        "mid2": "SSFSF" * 20,
+    }
+
+    def run(**options):
+        ctx = BudgetRound(dict(outcomes), budget=30, batch_size=4, max_demos_per_task=12)
+        records = {
+            r.task: r for r in ctx.strategy(rollout_cost=1.0, probe_unsure=True, **options).expand(ctx)
+        }
+        spent = {t: r.demos_added + r.expert_failures + r.eval_episodes for t, r in records.items()}
+        assert sum(spent.values()) == 30  # the whole budget, never more
+        for task, r in records.items():  # each demonstration at a failed state or a fresh one
+            assert all(ctx.outcomes[task][ctx._position[task][s]] == "F" for s in ctx.collected[task])
+            assert r.demos_added == len(ctx.collected[task]) + len(ctx.fresh[task])
+            assert r.eval_episodes == r.successes + r.failures
+        return records, spent
+
+    greedy, greedy_spent = run()
+    assert greedy_spent["weak"] >= 20 and greedy["mid"].demos_added == greedy["mid2"].demos_added == 0
+    split, spent = run(split_episodes=True)
+    assert split["mid"].demos_added >= 2 and split["mid2"].demos_added >= 2
+    assert spent["weak"] > max(spent["mid"], spent["mid2"]) > spent["solved"]
+    assert split["solved"].demos_added == 0 and split["solved"].eval_episodes == 3  # closed as with greedy
+    # Evaluating pays on the weakest task: every one of its demonstrations is at a failure.
+    assert split["weak"].demos_added == split["weak"].failures

@@ -111,10 +111,13 @@ def test_uniform_adds_exactly_n_per_task_from_fresh_states(dataset):
         assert set(rows["adademo/seed"]) <= {fresh_state_seed(0, 1, r["task"], d) for d in range(12)}
 
 
-def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset, ckpt):
-    """Round 2 ranks its states by the outcomes of round 1 (k-NN): two rounds, each within its budget, every demo
-    at a state the policy failed or counted as a fresh one (no rollout), and the journaled evaluations are exactly
-    the ledger's rollouts."""
+@pytest.mark.parametrize(
+    "option", ["--strategy.rank_states=knn", "--strategy.split_episodes=true"], ids=["knn", "split"]
+)
+def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset, ckpt, option):
+    """Round 2 ranks its states by the outcomes of round 1 (k-NN), or splits its budget by the posterior they
+    give: two rounds, each within its budget, every demo at a state the policy failed or counted as a fresh one
+    (no rollout), and the journaled evaluations are exactly the ledger's rollouts."""
     for round_index in (1, 2):
         expand(
             dataset,
@@ -122,7 +125,7 @@ def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset,
             "--strategy.type=budgeted",
             "--strategy.budget=6",
             "--strategy.rollout_cost=0.5",
-            "--strategy.rank_states=knn",
+            option,
             "--eval.batch_size=2",
         )
         _, new, ledger = check_ledger_agrees(dataset, round_index)
@@ -274,6 +277,7 @@ def test_bad_input_gets_one_clear_error_and_no_change(dataset, ckpt, tmp_path):
     fails(*budgeted, "--strategy.rollout_cost=-1", match="rollout_cost must be a number >= 0")
     fails(*budgeted, "--strategy.rollout_cost=abc", match="rollout_cost")
     fails(*budgeted, "--strategy.rank_states=knn", match="used with --strategy.rollout_cost")
+    fails(*budgeted, "--strategy.split_episodes=true", match="used with --strategy.rollout_cost")
     fails(
         "--strategy.type=uniform",
         "--strategy.demos_per_task=1",

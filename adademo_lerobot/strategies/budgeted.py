@@ -83,13 +83,18 @@ class BudgetedConfig(StrategyConfig):
     # With a rollout cost: probe a task with single rollouts before leaving it without fresh demonstrations, while
     # its failure rate may still be 1 / failure_worth or more (the posterior's 80th percentile).
     probe_unsure: bool = False
+    # With a rollout cost: split the round's budget, rollouts included, across the tasks by expected failure rate
+    # (each acts in turn, furthest below its share first) instead of evaluating the likeliest-failing task first.
+    split_episodes: bool = False
 
     def validate(self) -> None:
         check_per_round("budget", self.budget, required=True)
         check_per_round("max_demos_per_task", self.max_demos_per_task, required=True)
         check_eval_bound(self.max_eval_episodes_per_task)
         check_decay(self.posterior_decay)
-        check_rollout_cost(self.rollout_cost, self.failure_worth, self.rank_states, self.probe_unsure)
+        check_rollout_cost(
+            self.rollout_cost, self.failure_worth, self.rank_states, self.probe_unsure, self.split_episodes
+        )
 
     def answers_failures_only(self) -> bool:
         return self.rollout_cost is None  # paying for rollouts, it also buys demos from fresh states
@@ -106,17 +111,28 @@ class BudgetedConfig(StrategyConfig):
             failure_worth=self.failure_worth,
             rank_states=self.rank_states,
             probe_unsure=self.probe_unsure,
+            split_episodes=self.split_episodes,
         )
 
 
 def check_rollout_cost(
-    rollout_cost: float | None, failure_worth: float, rank_states: str, probe_unsure: bool = False
+    rollout_cost: float | None,
+    failure_worth: float,
+    rank_states: str,
+    probe_unsure: bool = False,
+    split_episodes: bool = False,
 ) -> None:
     if rollout_cost is None:
-        if failure_worth != DEFAULT_FAILURE_WORTH or rank_states != "random" or probe_unsure:
+        options = (
+            failure_worth != DEFAULT_FAILURE_WORTH,
+            rank_states != "random",
+            probe_unsure,
+            split_episodes,
+        )
+        if any(options):
             raise AdaDemoError(
-                "--strategy.failure_worth, --strategy.rank_states and --strategy.probe_unsure are used with "
-                "--strategy.rollout_cost: give "
+                "--strategy.failure_worth, --strategy.rank_states, --strategy.probe_unsure and "
+                "--strategy.split_episodes are used with --strategy.rollout_cost: give "
                 "the cost of a policy rollout in demonstrations (e.g. 1 on a robot), or drop them"
             )
         return
@@ -145,6 +161,7 @@ class BudgetedStrategy:
     failure_worth: float = DEFAULT_FAILURE_WORTH
     rank_states: str = "random"
     probe_unsure: bool = False
+    split_episodes: bool = False
     commits_by_task = False  # one loop over the whole round: demos are committed in the order they arrive
 
     def start(self, ctx: InnerLoop, resumed: dict | None) -> dict:
@@ -160,8 +177,8 @@ class BudgetedStrategy:
                 "failure_worth": self.failure_worth,
                 "rank_states": self.rank_states,
             }
-        if self.probe_unsure:  # (rounds journaled before the option keep their settings)
-            settings["probe_unsure"] = True
+        # (rounds journaled before these options keep their settings)
+        settings |= {k: True for k in ("probe_unsure", "split_episodes") if getattr(self, k)}
         return settings
 
     def first_split(
