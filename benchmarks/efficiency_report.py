@@ -645,6 +645,42 @@ def fmt_seed_cstar(values: PerSeed, i: int) -> str:
     return low if low == high else f"{low} to {high}"
 
 
+def where_episodes_went(
+    runs: dict[tuple[str, int], Run],
+    arms: list[str],
+    seeds_of: dict[str, list[int]],
+    tasks: list[str],
+    labels,
+) -> list[str]:
+    """Per task and arm, what the expansion rounds spent there: demonstrations / policy rollouts after the last
+    round, mean over the arm's seeds paired with Uniform (why an arm gains or loses on a task)."""
+    from adademo_lerobot.core.tables import table
+
+    rows = []
+    for task in tasks:
+        cells = []
+        for arm in arms:
+            seeds = [s for s in seeds_of[arm] if s in seeds_of["uniform"]]
+            spent = {
+                measure: np.mean(
+                    [
+                        cumulative_added(runs[(arm, s)].ledger, runs[(arm, s)].success.shape[1], cost, task)[
+                            -1
+                        ]
+                        for s in seeds
+                    ]
+                )
+                for measure, cost in (("demos", COSTS["demos"]), ("rollouts", COSTS["rollouts"]))
+            }
+            cells.append(f"{spent['demos']:.1f} / {spent['rollouts']:.1f}")
+        rows.append([task, *cells])
+    return [
+        "## Where the episodes went (per task after the last round: demonstrations / rollouts, mean over seeds)",
+        "",
+        table(["task", *(labels.get(a, a) for a in arms)], rows, aligned=False),
+    ]
+
+
 def write_report(
     folder: Path,
     labels: dict[str, str],
@@ -796,6 +832,7 @@ def write_report(
             lines += correction_lines(
                 runs, arm, [s for s in seeds_of[arm] if s in seeds_of["uniform"]], tasks
             )
+    lines += ["", *where_episodes_went(runs, arms, seeds_of, tasks, labels)]
     lines += [
         "",
         "## Will adaptive collection help on a task? Failure predictability against gains",

@@ -420,3 +420,25 @@ def test_kept_successful_rollouts_are_reported_per_task_only_where_an_arm_kept_s
     runs[("keep", 0)] = report.load_run(kept)
     [_, line] = report.kept_rollout_lines(runs, {"uniform": [0], "keep": [0]}, {"keep": "Keeper"})
     assert line.endswith("Keeper 6.0.")  # (3 + 1) x 3 rounds over 2 tasks
+
+
+def test_where_the_episodes_went_per_task_mean_over_paired_seeds():
+    runs = {}
+    for seed, (demos_a, evals) in enumerate([(2, 10), (4, 20)]):
+        arm = summary("arm", seed, [0.5, 0.6, 0.7, 0.8], 200)
+        for row in arm["ledger"]:
+            row["demos_added"] = demos_a if row["task"] == "a" else 0
+            row["eval_episodes"] = evals
+        runs[("arm", seed)] = report.load_run(arm)
+        uniform = summary("uniform", seed, [0.5, 0.6, 0.7, 0.8], 200, 6)
+        for row in uniform["ledger"]:
+            row["eval_episodes"] = 0
+        runs[("uniform", seed)] = report.load_run(uniform)
+    runs[("arm", 2)] = runs[("arm", 0)]  # a seed Uniform did not finish: not in the mean
+    lines = report.where_episodes_went(
+        runs, ["uniform", "arm"], {"uniform": [0, 1], "arm": [0, 1, 2]}, TASKS, {}
+    )
+    assert lines[-1].splitlines()[2:] == [
+        "| a | 18.0 / 0.0 | 9.0 / 45.0 |",  # 3 rounds of (2 + 4) / 2 demonstrations, of (10 + 20) / 2 rollouts
+        "| b | 18.0 / 0.0 | 0.0 / 45.0 |",
+    ]
