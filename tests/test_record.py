@@ -186,6 +186,44 @@ def test_a_budgeted_round_with_a_person_spends_exactly_its_budget_every_round(re
 
 
 @requires_rendering
+def test_a_person_runs_the_strategy_that_pays_for_its_policy_episodes(recorded, tmp_path):
+    """`--strategy.rollout_cost` at a robot, two rounds within their budgets of episodes: in the first, a policy
+    episode costs 3 demonstrations, so none is worth running and every demonstration is the person's from a new
+    scene; in the second (cost 0.5, the episodes split by expected failure, unsure tasks probed) policy episodes
+    are run, each failure answered at its own start, the rest from new scenes."""
+    source, checkpoint = recorded
+    root = tmp_path / "dataset"
+    subprocess.run(["cp", "-r", str(source), str(root)], check=True)
+    paying = ["--strategy.type=budgeted", "--strategy.budget=4"]
+    second = ["--strategy.rollout_cost=0.5", "--strategy.probe_unsure=true", "--strategy.split_episodes=true"]
+    for round_index, (cost, flags) in enumerate([(3.0, ["--strategy.rollout_cost=3"]), (0.5, second)], 1):
+        done = run_cli("adademo-record", *record_args(root, checkpoint, strategy=[*paying, *flags]))
+        assert (
+            f"round {round_index} plan (budgeted paying for policy episodes at {cost:g}, B=4" in done.stdout
+        )
+        ledger = [r for r in read_ledger(root) if r["round"] == round_index]
+        assert [r["task"] for r in ledger] == ["reach-v3", "push-v3"]
+        spent = sum(r["demos_added"] + r["expert_failures"] + cost * r["eval_episodes"] for r in ledger)
+        assert 0 < spent <= 4 and {r["extra"]["round_cost"] for r in ledger} == {spent}
+        evaluations = [e for e in read_round_evaluations(root, round_index) if e["type"] == "eval"]
+        assert len(evaluations) == sum(r["eval_episodes"] for r in ledger)
+        failed = {(e["task"], e["seed"]) for e in evaluations if not e["success"]}
+        evaluated = {(e["task"], e["seed"]) for e in evaluations}
+        new = read_episode_metadata(root)
+        new = new[new["adademo/round"] == round_index]
+        demos = set(zip(new.task, new["adademo/seed"], strict=True))
+        assert len(demos) == len(new) == sum(r["demos_added"] for r in ledger)
+        assert demos & evaluated <= failed  # at a failed episode's start, or from a new scene
+        assert len(demos - evaluated) == sum(r["extra"]["fresh_demos"] for r in ledger)
+        assert set(new["adademo/source"]) == {"human"}
+        if round_index == 1:  # no policy episode worth its cost: four demonstrations from new scenes
+            assert not evaluations and len(new) == 4
+        else:  # at 0.5 a task whose failure rate may be 1/4 or more is worth its episodes: Beta(1, 1) is
+            assert evaluations
+    check_dataset_integrity(root)
+
+
+@requires_rendering
 def test_old_strategy_flags_say_their_new_spelling_and_change_nothing(recorded):
     root, checkpoint = recorded
     before = file_digests(root)
@@ -203,6 +241,20 @@ def test_old_strategy_flags_say_their_new_spelling_and_change_nothing(recorded):
         "adademo-record",
         *record_args(root, checkpoint, strategy=["--strategy.type=uniform"]),
         match="use --strategy.type=adademo or budgeted",
+    )
+    assert_cli_error(  # ranking sampled initial states needs a simulator
+        "adademo-record",
+        *record_args(
+            root,
+            checkpoint,
+            strategy=[
+                "--strategy.type=budgeted",
+                "--strategy.budget=2",
+                "--strategy.rollout_cost=1",
+                "--strategy.rank_states=knn",
+            ],
+        ),
+        match="rank_states=knn ranks initial states a simulator samples",
     )
     assert file_digests(root) == before
 

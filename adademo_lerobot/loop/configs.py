@@ -319,13 +319,17 @@ class RecordConfig(ComputeArgs):
         self.validate_threads()
         self.strategy.validate()
         self.strategy.check_one_round("adademo-record")
-        if not self.strategy.answers_failures_only():
-            paying = " with --strategy.rollout_cost" if self.strategy.type == "budgeted" else ""
+        if not self.strategy.runs_with_a_person():
+            if getattr(self.strategy, "rank_states", "random") != "random":
+                raise AdaDemoError(
+                    "--strategy.rank_states=knn ranks initial states a simulator samples, which needs a simulated "
+                    "round (adademo-expand, adademo-run); on a robot drop it (the person sets up new scenes)"
+                )
             raise AdaDemoError(
-                f"--strategy.type={self.strategy.type}{paying} takes demonstrations from fresh initial states, "
-                "which needs a simulated round (adademo-expand, adademo-run); adademo-record answers the policy's "
-                f"failed episodes: use --strategy.type={' or '.join(StrategyConfig.answering_failures_only())}"
-                + (" (without --strategy.rollout_cost)" if paying else "")
+                f"--strategy.type={self.strategy.type} takes demonstrations from fresh initial states it samples "
+                "itself, which needs a simulated round (adademo-expand, adademo-run); at a robot use "
+                f"--strategy.type={' or '.join(StrategyConfig.running_with_a_person())} (budgeted with "
+                "--strategy.rollout_cost=1 also buys demonstrations from new scenes)"
             )
         if self.dataset.root is None or not has_dataset(self.dataset.root):
             raise AdaDemoError(

@@ -18,8 +18,10 @@ teleoperator's intervention event): the policy episode counts as a failure and t
 from that moment, with the robot's joint positions then as its start state (no scene to set up again). A failure
 the person did not take over is answered as above.
 With `--strategy.type=budgeted --strategy.budget=B` the same steps spend exactly B demonstrations, the task
-furthest below its share of the budget going next. Strategies that also demonstrate from fresh initial states
-(uniform, task_only, budgeted paying for rollouts) need a simulated round and are refused.
+furthest below its share of the budget going next. With `--strategy.rollout_cost=c` as well, B pays for the policy
+episodes too (c each) and, where a failure would cost too many episodes to find, for demonstrations from a new scene
+the person sets up (no policy episode before it). Strategies that sample their own initial states (uniform,
+task_only, `--strategy.rank_states=knn`) need a simulated round and are refused.
 Before the first episode, a plan from each task's latest success rate (adademo: the paper's N_k = E/SR_k - E;
 budgeted: the budget's first split) says how many demonstrations each task will likely need and how long that takes
 at the dataset's episode length (principle A).
@@ -108,6 +110,7 @@ def plan_lines(root: Path, round_index: int, tasks: list[str], strategy, episode
     eps = read_episode_metadata(root)
     fps = read_info(root)["fps"]
     budgeted = isinstance(strategy, BudgetedStrategy)
+    paying = budgeted and strategy.rollout_cost is not None
     split = strategy.first_split(root, round_index, tasks)[1] if budgeted else {}
     rows, total_s = [], 0.0
     for task in tasks:
@@ -116,7 +119,10 @@ def plan_lines(root: Path, round_index: int, tasks: list[str], strategy, episode
         rate = 1 - failure_mean((alpha, beta)) if seen else None
         lengths = eps.loc[eps.task == task, "length"]
         episode_s = float(lengths.mean()) / fps if len(lengths) else episode_time_s
-        if budgeted:  # N demos at failures: about N / P(failure) policy episodes and N demonstrations
+        if paying:  # its share of the budget's episodes (policy episodes at their cost, demonstrations at 1)
+            n = split[task]
+            episodes = n
+        elif budgeted:  # N demos at failures: about N / P(failure) policy episodes and N demonstrations
             n = split[task]
             episodes = n / failure_mean((alpha, beta)) + n
         else:  # E successes and about N failures, each answered by one demonstration
@@ -126,7 +132,14 @@ def plan_lines(root: Path, round_index: int, tasks: list[str], strategy, episode
         total_s += seconds
         sr = f"{100 * rate:.0f}%" if seen else "unknown (no round yet)"
         rows.append([task, sr, n, f"{episode_s:.1f}", f"{seconds / 60:.1f}"])
-    if budgeted:
+    if paying:
+        head = (
+            f"round {round_index} plan (budgeted paying for policy episodes at {strategy.rollout_cost:g}, "
+            f"B={strategy.budget}, CAP={strategy.cap}): the budget's first split by each task's expected failure "
+            "rate, in episodes (policy episodes and demonstrations; re-split after every episode), and the time at "
+            "the recorded episode length"
+        )
+    elif budgeted:
         head = (
             f"round {round_index} plan (budgeted, B={strategy.budget}, CAP={strategy.cap}): the budget's first "
             "split by each task's expected failure rate (re-split after every episode), and the time at the "
@@ -139,7 +152,10 @@ def plan_lines(root: Path, round_index: int, tasks: list[str], strategy, episode
         )
     return [
         head,
-        table(["task", "latest success", "predicted demos", "episode s", "minutes"], rows),
+        table(
+            ["task", "latest success", "episodes" if paying else "predicted demos", "episode s", "minutes"],
+            rows,
+        ),
         f"about {_duration(total_s)} of episodes, plus resetting scenes",
     ]
 

@@ -164,28 +164,34 @@ class Session:
         )
         return demo, time.perf_counter() - start
 
-    def demonstration(self, task: str, failed: dict) -> tuple[Demonstration | None, int, float]:
-        """The person's demonstration from the failed episode's start: (demo or None after every attempt gave
-        none, attempts, seconds)."""
+    def demonstration(
+        self, task: str, failed: dict | None, seed: int
+    ) -> tuple[Demonstration | None, int, float]:
+        """The person's demonstration from the failed episode's start, or (`failed` None: a fresh initial state,
+        no policy episode before it) from a new scene: (demo or None after every attempt gave none, attempts,
+        seconds)."""
         start = time.perf_counter()
         for attempt in range(1, self.cfg.max_attempts + 1):
             if self.simulated:
-                self.robot.reset_scene(failed["seed"])
+                self.robot.reset_scene(seed)
+            elif failed is None:
+                self.person.ready(
+                    f"{task}: set up a new scene (demonstration {seed}, no policy episode before it), press n, "
+                    "then teleoperate the task; press n when done"
+                )
             else:
                 frames = ", ".join(str(self.root / p) for p in failed["first_frames"].values())
                 joints = ", ".join(
                     f"{n}={v:.3g}" for n, v in zip(self.state_names, failed["initial_state"], strict=True)
                 )
                 self.person.ready(
-                    f"{task}: put the scene back as it was when episode {failed['seed']} started "
+                    f"{task}: put the scene back as it was when episode {seed} started "
                     f"({'first frame: ' + frames + '; ' if frames else ''}joints: {joints}), press n, then "
                     "teleoperate the task; press n when done"
                 )
             frames_out, first = self._teleoperate()
             if self.person.keep_demo(task):
-                demo = Demonstration(
-                    task, np.asarray(self._joints(first)), failed["seed"], frames_out, attempt
-                )
+                demo = Demonstration(task, np.asarray(self._joints(first)), seed, frames_out, attempt)
                 return demo, attempt, time.perf_counter() - start
         return None, self.cfg.max_attempts, time.perf_counter() - start
 
@@ -208,8 +214,10 @@ class PersonRound(JournaledRound):
     """Algorithm 1's round context (`algorithm.InnerLoop`, as `RoundContext` is in a simulated round) with a person
     and a robot behind it. Evaluating a state is a policy episode the person judges, or takes over (the correction is
     recorded at once, while the robot is where the person took over); a demonstration is the person's, from the
-    failed episode's start, or that correction. Its books are the simulated round's (`JournaledRound`): everything
-    is journaled first, so after a stop the strategy runs again over the same states and reuses what was done."""
+    failed episode's start, or that correction, or (a seed the round never evaluated: a strategy paying for its
+    rollouts buys demonstrations from fresh initial states) from a new scene. Its books are the simulated
+    round's (`JournaledRound`): everything is journaled first, so after a stop the strategy runs again over the
+    same states and reuses what was done."""
 
     batch_size = 1  # one robot, one episode at a time
     seed: int
@@ -255,19 +263,19 @@ class PersonRound(JournaledRound):
         reused = self.reuse_answer(task, seed, record)  # answered before a stop
         if reused is not None:
             return reused
-        failed = self.journal.evaluations(task)[seed]
+        failed = self.journal.evaluations(task).get(seed)  # None: a fresh initial state (a new scene)
         if (task, seed) in self._corrections:
             (demo, seconds), attempts = self._corrections.pop((task, seed)), 1
         else:  # from the episode's start (a correction a stop interrupted too: the robot has moved since)
             self._use(task)
-            demo, attempts, seconds = self.session.demonstration(task, failed)
+            demo, attempts, seconds = self.session.demonstration(task, failed, seed)
         if demo is None:
             entry = {
                 "type": "expert_failure",
                 "task": task,
                 "seed": int(seed),
                 "attempts": attempts,
-                "initial_state": failed["initial_state"],
+                "initial_state": failed["initial_state"] if failed else None,
             }
             return self.store_answer(task, entry, record)
         entry = {**demo_entry(task, seed, demo, len(demo.frames)), "seconds": round(seconds, 3)}

@@ -120,10 +120,16 @@ class StrategyConfig(draccus.ChoiceRegistry, abc.ABC):
         from fresh initial states need a simulated round (`RoundContext`)."""
         return self.collects_at_failed_states
 
+    def runs_with_a_person(self) -> bool:
+        """A person at a robot can run its rounds (`adademo-record`): they ask only for policy episodes and
+        demonstrations, each from a failed episode's start or from a new scene (the `algorithm.InnerLoop` part of a
+        round), never for initial states sampled and ranked by a simulator."""
+        return self.answers_failures_only()
+
     @classmethod
-    def answering_failures_only(cls) -> list[str]:
-        """The registered strategies whose default settings answer failures only."""
-        return [name for name, choice in cls.get_known_choices().items() if choice().answers_failures_only()]
+    def running_with_a_person(cls) -> list[str]:
+        """The registered strategies a person at a robot can run with their default settings."""
+        return [name for name, choice in cls.get_known_choices().items() if choice().runs_with_a_person()]
 
     def can_plan(self) -> bool:
         """Its rounds predict each task's demonstrations from the success rate alone (N_k = E/SR_k - E, capped):

@@ -99,6 +99,11 @@ class BudgetedConfig(StrategyConfig):
     def answers_failures_only(self) -> bool:
         return self.rollout_cost is None  # paying for rollouts, it also buys demos from fresh states
 
+    def runs_with_a_person(self) -> bool:
+        # Paying for rollouts, its fresh-state demonstrations are a person's from a new scene; only the k-NN
+        # ranking needs initial states a simulator samples.
+        return self.rank_states == "random"
+
     def build(self, round_in_run: int) -> BudgetedStrategy:
         cap = self.max_demos_per_task.at(round_in_run)
         bound = self.max_eval_episodes_per_task or default_eval_bound(None, cap)

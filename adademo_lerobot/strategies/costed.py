@@ -35,7 +35,9 @@ is worth its rollouts:
   k-nearest-neighbour vote over every outcome seen so far (earlier rounds and this one) predicts most likely to
   fail, instead of the next random ones: demonstrations at predicted failures without a rollout.
 
-Every decision depends only on journaled outcomes, so an interrupted round resumes to the same result.
+Every decision depends only on journaled outcomes, so an interrupted round resumes to the same result. Without the
+k-NN ranking the loop asks a round only for policy episodes and demonstrations (`algorithm.InnerLoop`; a seed never
+evaluated is a fresh initial state), so a person at a robot runs it too (`adademo-record`: a new scene).
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ from adademo_lerobot.strategies.estimates import (
 )
 
 if TYPE_CHECKING:
+    from adademo_lerobot.strategies.algorithm import InnerLoop
     from adademo_lerobot.strategies.budgeted import BudgetedStrategy
     from adademo_lerobot.strategies.round_context import RoundContext
 
@@ -83,7 +86,7 @@ class FailureRanker:
         self.states: list[np.ndarray] = []
         self.failed: list[bool] = []
         for r in range(1, ctx.round_index):
-            for e in read_round_evaluations(ctx.dataset.root, r):
+            for e in read_round_evaluations(ctx.root, r):
                 if e.get("type") == "eval" and e["task"] == task:
                     self.add(e["seed"], not e["success"])
 
@@ -106,12 +109,11 @@ class FailureRanker:
         return knn_failure_vote(np.stack(self.states), failed, query, NEIGHBOURS)
 
 
-def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) -> list[TaskRoundRecord]:
-    tasks, cap, c = ctx.suite.tasks, strategy.cap, strategy.rollout_cost
+def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: InnerLoop) -> list[TaskRoundRecord]:
+    tasks, cap, c = ctx.tasks, strategy.cap, strategy.rollout_cost
     threshold = c / (strategy.failure_worth - 1)  # a task is worth evaluating while p >= c / (W - 1)
     posterior = {
-        t: prior_from_earlier_rounds(ctx.dataset.root, ctx.round_index, t, strategy.posterior_decay)
-        for t in tasks
+        t: prior_from_earlier_rounds(ctx.root, ctx.round_index, t, strategy.posterior_decay) for t in tasks
     }
     records = {t: ctx.new_record(t, strategy.name, cap=cap) for t in tasks}
     for t in tasks:
@@ -250,7 +252,7 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: RoundContext) ->
 
 def split_episodes_by_failure(
     strategy: BudgetedStrategy,
-    ctx: RoundContext,
+    ctx: InnerLoop,
     records: dict[str, TaskRoundRecord],
     posterior: dict[str, tuple[float, float]],
     optimistic_failure: Callable[[str], float],
@@ -260,7 +262,7 @@ def split_episodes_by_failure(
 ) -> None:
     """`--strategy.split_episodes`: the round's budget split across tasks by posterior mean failure rate; the task
     furthest below its share acts next (evaluate, else a fresh-state demonstration, else probe) until none can."""
-    tasks, c, worth = ctx.suite.tasks, strategy.rollout_cost, strategy.failure_worth
+    tasks, c, worth = ctx.tasks, strategy.rollout_cost, strategy.failure_worth
     threshold = c / (worth - 1)
 
     def spent(t: str) -> float:
