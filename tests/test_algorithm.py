@@ -512,3 +512,19 @@ def test_split_episodes_shares_the_round_by_expected_failure_instead_of_feeding_
     assert split["solved"].demos_added == 0 and split["solved"].eval_episodes == 3  # closed as with greedy
     # Evaluating pays on the weakest task: every one of its demonstrations is at a failure.
     assert split["weak"].demos_added == split["weak"].failures
+
+
+def test_optimism_sets_how_many_straight_successes_close_a_task():
+    """--strategy.optimism is the posterior quantile of the failure rate that keeps a task open: at 0.8 three
+    straight successes close it (Beta(1, 4)'s 80th percentile is under 1/3), at 0.9 five; a task at 60 % success
+    that starts with three successes by luck then shows its failures and gets demonstrations."""
+    outcomes = {"solved": "S" * 100, "lucky": "SSS" + "FSFSF" * 20}
+    for optimism, solved_rollouts in ((0.8, 3), (0.9, 5)):
+        ctx = BudgetRound(dict(outcomes), budget=30, batch_size=2, max_demos_per_task=8)
+        strategy = ctx.strategy(rollout_cost=1.0, probe_unsure=True, split_episodes=True, optimism=optimism)
+        records = {r.task: r for r in strategy.expand(ctx)}
+        assert records["solved"].eval_episodes == solved_rollouts and records["solved"].demos_added == 0
+        if optimism == 0.8:
+            assert records["lucky"].eval_episodes == 3 and records["lucky"].demos_added == 0
+        else:
+            assert records["lucky"].failures >= 1 and records["lucky"].demos_added >= 1

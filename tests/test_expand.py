@@ -278,6 +278,10 @@ def test_bad_input_gets_one_clear_error_and_no_change(dataset, ckpt, tmp_path):
     fails(*budgeted, "--strategy.rollout_cost=abc", match="rollout_cost")
     fails(*budgeted, "--strategy.rank_states=knn", match="used with --strategy.rollout_cost")
     fails(*budgeted, "--strategy.split_episodes=true", match="used with --strategy.rollout_cost")
+    fails(*budgeted, "--strategy.optimism=0.9", match="used with --strategy.rollout_cost")
+    fails(
+        *budgeted, "--strategy.rollout_cost=1", "--strategy.optimism=1.5", match="optimism must be a quantile"
+    )
     fails(
         "--strategy.type=uniform",
         "--strategy.demos_per_task=1",

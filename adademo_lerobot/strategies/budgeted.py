@@ -42,7 +42,12 @@ from adademo_lerobot.strategies.base import (
     default_eval_bound,
     per_round,
 )
-from adademo_lerobot.strategies.costed import DEFAULT_FAILURE_WORTH, RANKINGS, expand_paying_for_rollouts
+from adademo_lerobot.strategies.costed import (
+    DEFAULT_FAILURE_WORTH,
+    DEFAULT_OPTIMISM,
+    RANKINGS,
+    expand_paying_for_rollouts,
+)
 from adademo_lerobot.strategies.estimates import (
     DEFAULT_DECAY,
     allocate,
@@ -86,6 +91,9 @@ class BudgetedConfig(StrategyConfig):
     # With a rollout cost: split the round's budget, rollouts included, across the tasks by expected failure rate
     # (each acts in turn, furthest below its share first) instead of evaluating the likeliest-failing task first.
     split_episodes: bool = False
+    # With a rollout cost: the quantile of a task's posterior failure rate that decides whether it is still worth
+    # evaluating or probing (higher: more successes before a task closes).
+    optimism: float = DEFAULT_OPTIMISM
 
     def validate(self) -> None:
         check_per_round("budget", self.budget, required=True)
@@ -93,7 +101,12 @@ class BudgetedConfig(StrategyConfig):
         check_eval_bound(self.max_eval_episodes_per_task)
         check_decay(self.posterior_decay)
         check_rollout_cost(
-            self.rollout_cost, self.failure_worth, self.rank_states, self.probe_unsure, self.split_episodes
+            self.rollout_cost,
+            self.failure_worth,
+            self.rank_states,
+            self.probe_unsure,
+            self.split_episodes,
+            self.optimism,
         )
 
     def answers_failures_only(self) -> bool:
@@ -117,6 +130,7 @@ class BudgetedConfig(StrategyConfig):
             rank_states=self.rank_states,
             probe_unsure=self.probe_unsure,
             split_episodes=self.split_episodes,
+            optimism=self.optimism,
         )
 
 
@@ -126,6 +140,7 @@ def check_rollout_cost(
     rank_states: str,
     probe_unsure: bool = False,
     split_episodes: bool = False,
+    optimism: float = DEFAULT_OPTIMISM,
 ) -> None:
     if rollout_cost is None:
         options = (
@@ -133,11 +148,12 @@ def check_rollout_cost(
             rank_states != "random",
             probe_unsure,
             split_episodes,
+            optimism != DEFAULT_OPTIMISM,
         )
         if any(options):
             raise AdaDemoError(
-                "--strategy.failure_worth, --strategy.rank_states, --strategy.probe_unsure and "
-                "--strategy.split_episodes are used with --strategy.rollout_cost: give "
+                "--strategy.failure_worth, --strategy.rank_states, --strategy.probe_unsure, "
+                "--strategy.split_episodes and --strategy.optimism are used with --strategy.rollout_cost: give "
                 "the cost of a policy rollout in demonstrations (e.g. 1 on a robot), or drop them"
             )
         return
@@ -148,6 +164,11 @@ def check_rollout_cost(
         )
     if not failure_worth > 1:
         raise AdaDemoError(f"--strategy.failure_worth must be > 1 (demonstrations), got {failure_worth}")
+    if not (isinstance(optimism, int | float) and 0.5 <= optimism < 1):
+        raise AdaDemoError(
+            f"--strategy.optimism must be a quantile in [0.5, 1) (0.8: three straight successes close a task, "
+            f"0.9: five), got {optimism}"
+        )
     if rank_states not in RANKINGS:
         raise AdaDemoError(
             f"--strategy.rank_states must be one of {', '.join(RANKINGS)}, got {rank_states!r}"
@@ -167,6 +188,7 @@ class BudgetedStrategy:
     rank_states: str = "random"
     probe_unsure: bool = False
     split_episodes: bool = False
+    optimism: float = DEFAULT_OPTIMISM
     commits_by_task = False  # one loop over the whole round: demos are committed in the order they arrive
 
     def start(self, ctx: InnerLoop, resumed: dict | None) -> dict:
@@ -184,6 +206,8 @@ class BudgetedStrategy:
             }
         # (rounds journaled before these options keep their settings)
         settings |= {k: True for k in ("probe_unsure", "split_episodes") if getattr(self, k)}
+        if self.optimism != DEFAULT_OPTIMISM:
+            settings["optimism"] = self.optimism
         return settings
 
     def first_split(
