@@ -656,23 +656,19 @@ def where_episodes_went(
     round, mean over the arm's seeds paired with Uniform (why an arm gains or loses on a task)."""
     from adademo_lerobot.core.tables import table
 
+    def added(arm: str, seed: int, measure: str, task: str) -> float:
+        run = runs[(arm, seed)]
+        return cumulative_added(run.ledger, run.success.shape[1], COSTS[measure], task)[-1]
+
     rows = []
     for task in tasks:
         cells = []
         for arm in arms:
             seeds = [s for s in seeds_of[arm] if s in seeds_of["uniform"]]
-            spent = {
-                measure: np.mean(
-                    [
-                        cumulative_added(runs[(arm, s)].ledger, runs[(arm, s)].success.shape[1], cost, task)[
-                            -1
-                        ]
-                        for s in seeds
-                    ]
-                )
-                for measure, cost in (("demos", COSTS["demos"]), ("rollouts", COSTS["rollouts"]))
-            }
-            cells.append(f"{spent['demos']:.1f} / {spent['rollouts']:.1f}")
+            demos, rollouts = (
+                np.mean([added(arm, s, m, task) for s in seeds]) for m in ("demos", "rollouts")
+            )
+            cells.append(f"{demos:.1f} / {rollouts:.1f}")
         rows.append([task, *cells])
     return [
         "## Where the episodes went (per task after the last round: demonstrations / rollouts, mean over seeds)",

@@ -319,17 +319,11 @@ class RecordConfig(ComputeArgs):
         self.validate_threads()
         self.strategy.validate()
         self.strategy.check_one_round("adademo-record")
-        if not self.strategy.runs_with_a_person():
-            if getattr(self.strategy, "rank_states", "random") != "random":
-                raise AdaDemoError(
-                    "--strategy.rank_states=knn ranks initial states a simulator samples, which needs a simulated "
-                    "round (adademo-expand, adademo-run); on a robot drop it (the person sets up new scenes)"
-                )
+        if (why := self.strategy.needs_a_simulator()) is not None:
             raise AdaDemoError(
-                f"--strategy.type={self.strategy.type} takes demonstrations from fresh initial states it samples "
-                "itself, which needs a simulated round (adademo-expand, adademo-run); at a robot use "
+                f"{why}, which needs a simulated round (adademo-expand, adademo-run); at a robot use "
                 f"--strategy.type={' or '.join(StrategyConfig.running_with_a_person())} (budgeted with "
-                "--strategy.rollout_cost=1 also buys demonstrations from new scenes)"
+                "--strategy.rollout_cost=1 also buys demonstrations from new scenes; the person sets them up)"
             )
         if self.dataset.root is None or not has_dataset(self.dataset.root):
             raise AdaDemoError(

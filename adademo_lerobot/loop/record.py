@@ -119,12 +119,11 @@ def plan_lines(root: Path, round_index: int, tasks: list[str], strategy, episode
         rate = 1 - failure_mean((alpha, beta)) if seen else None
         lengths = eps.loc[eps.task == task, "length"]
         episode_s = float(lengths.mean()) / fps if len(lengths) else episode_time_s
-        if paying:  # its share of the budget's episodes (policy episodes at their cost, demonstrations at 1)
+        if budgeted:
+            # Paying: its share of the budget is in episodes (policy episodes at their cost, demonstrations at 1);
+            # else N demos at failures, about N / P(failure) policy episodes and N demonstrations.
             n = split[task]
-            episodes = n
-        elif budgeted:  # N demos at failures: about N / P(failure) policy episodes and N demonstrations
-            n = split[task]
-            episodes = n / failure_mean((alpha, beta)) + n
+            episodes = n if paying else n / failure_mean((alpha, beta)) + n
         else:  # E successes and about N failures, each answered by one demonstration
             n = predicted_demos(rate, strategy.target_successes, strategy.cap)
             episodes = strategy.target_successes + 2 * n

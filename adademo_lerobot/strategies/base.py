@@ -120,16 +120,20 @@ class StrategyConfig(draccus.ChoiceRegistry, abc.ABC):
         from fresh initial states need a simulated round (`RoundContext`)."""
         return self.collects_at_failed_states
 
-    def runs_with_a_person(self) -> bool:
-        """A person at a robot can run its rounds (`adademo-record`): they ask only for policy episodes and
-        demonstrations, each from a failed episode's start or from a new scene (the `algorithm.InnerLoop` part of a
-        round), never for initial states sampled and ranked by a simulator."""
-        return self.answers_failures_only()
+    def needs_a_simulator(self) -> str | None:
+        """Why a person at a robot cannot run its rounds, None if they can (`adademo-record`): a round a person runs
+        asks only for policy episodes and demonstrations, each from a failed episode's start or from a new scene
+        (the `algorithm.InnerLoop` part of a round), never for initial states sampled by a simulator."""
+        if self.answers_failures_only():
+            return None
+        return f"--strategy.type={self.type} takes demonstrations from fresh initial states it samples itself"
 
     @classmethod
     def running_with_a_person(cls) -> list[str]:
         """The registered strategies a person at a robot can run with their default settings."""
-        return [name for name, choice in cls.get_known_choices().items() if choice().runs_with_a_person()]
+        return [
+            name for name, choice in cls.get_known_choices().items() if choice().needs_a_simulator() is None
+        ]
 
     def can_plan(self) -> bool:
         """Its rounds predict each task's demonstrations from the success rate alone (N_k = E/SR_k - E, capped):

@@ -112,10 +112,12 @@ class BudgetedConfig(StrategyConfig):
     def answers_failures_only(self) -> bool:
         return self.rollout_cost is None  # paying for rollouts, it also buys demos from fresh states
 
-    def runs_with_a_person(self) -> bool:
+    def needs_a_simulator(self) -> str | None:
         # Paying for rollouts, its fresh-state demonstrations are a person's from a new scene; only the k-NN
         # ranking needs initial states a simulator samples.
-        return self.rank_states == "random"
+        if self.rank_states == "random":
+            return None
+        return "--strategy.rank_states=knn ranks initial states a simulator samples"
 
     def build(self, round_in_run: int) -> BudgetedStrategy:
         cap = self.max_demos_per_task.at(round_in_run)

@@ -45,7 +45,6 @@ evaluated is a fresh initial state), so a person at a robot runs it too (`adadem
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -74,9 +73,13 @@ MIN_OUTCOMES = 5  # outcomes (with at least one failure) before the k-NN ranks c
 CANDIDATES = 8  # candidate states drawn per state evaluated, for ranking
 
 
+def task_cost(record: TaskRoundRecord, rollout_cost: float) -> float:
+    """What a task has spent this round, in demonstrations: every expert attempt, and every rollout at its cost."""
+    return record.demos_added + record.expert_failures + rollout_cost * record.eval_episodes
+
+
 def round_cost(records: dict[str, TaskRoundRecord], rollout_cost: float) -> float:
-    """What the round has spent, in demonstrations: every expert attempt, and every rollout at its cost."""
-    return sum(r.demos_added + r.expert_failures + rollout_cost * r.eval_episodes for r in records.values())
+    return sum(task_cost(r, rollout_cost) for r in records.values())
 
 
 class FailureRanker:
@@ -225,17 +228,41 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: InnerLoop) -> li
             share = allocate(int(left), weak, {t: cap - records[t].demos_added for t in weak})
             demonstrate_from_fresh_state(max(weak, key=lambda t: (share[t], weak[t], -tasks.index(t))))
 
+    def split_episodes_by_failure() -> None:
+        """The round's budget split across tasks by posterior mean failure rate; the task furthest below its share
+        acts next (evaluate, else a fresh-state demonstration, else probe) until none can."""
+        while True:
+            left = strategy.budget - round_cost(records, c)
+            affordable = int(left // (c + 1))  # a rollout and the demonstration it may lead to
+            action: dict[str, str] = {}
+            for t in tasks:
+                r = records[t]
+                if r.demos_added >= cap:
+                    continue
+                may_evaluate = r.eval_episodes < strategy.max_eval_episodes_per_task and affordable >= 1
+                u, p = optimistic_failure(t), failure_mean(posterior[t])
+                if may_evaluate and u >= threshold:
+                    action[t] = "evaluate"
+                elif strategy.failure_worth * p >= 1 and left >= 1:
+                    action[t] = "fresh"
+                elif may_evaluate and strategy.probe_unsure and strategy.failure_worth * u >= 1:
+                    action[t] = "probe"
+            if not action:
+                return
+            # The budget the closed tasks did not spend is shared by the acting ones, by expected failure rate.
+            free = strategy.budget - sum(task_cost(records[t], c) for t in tasks if t not in action)
+            mass = sum(failure_mean(posterior[t]) for t in action)
+            lacking = {t: free * failure_mean(posterior[t]) / mass - task_cost(records[t], c) for t in action}
+            task = max(action, key=lambda t: (lacking[t], -tasks.index(t)))
+            if action[task] == "evaluate":  # one state at first, more as it fails
+                evaluate(task, min(max(1, records[task].failures), affordable))
+            elif action[task] == "fresh":
+                demonstrate_from_fresh_state(task)
+            else:
+                probe(task)
+
     if strategy.split_episodes:
-        split_episodes_by_failure(
-            strategy,
-            ctx,
-            records,
-            posterior,
-            optimistic_failure,
-            evaluate,
-            probe,
-            demonstrate_from_fresh_state,
-        )
+        split_episodes_by_failure()
     else:
         evaluate_likeliest_failure_first()
     spent = round_cost(records, c)
@@ -251,53 +278,3 @@ def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: InnerLoop) -> li
             fresh_attempts=fresh_draws[t],
         )
     return [records[t] for t in tasks]
-
-
-def split_episodes_by_failure(
-    strategy: BudgetedStrategy,
-    ctx: InnerLoop,
-    records: dict[str, TaskRoundRecord],
-    posterior: dict[str, tuple[float, float]],
-    optimistic_failure: Callable[[str], float],
-    evaluate: Callable[[str, int], None],
-    probe: Callable[[str], None],
-    demonstrate_from_fresh_state: Callable[[str], None],
-) -> None:
-    """`--strategy.split_episodes`: the round's budget split across tasks by posterior mean failure rate; the task
-    furthest below its share acts next (evaluate, else a fresh-state demonstration, else probe) until none can."""
-    tasks, c, worth = ctx.tasks, strategy.rollout_cost, strategy.failure_worth
-    threshold = c / (worth - 1)
-
-    def spent(t: str) -> float:
-        r = records[t]
-        return r.demos_added + r.expert_failures + c * r.eval_episodes
-
-    while True:
-        left = strategy.budget - round_cost(records, c)
-        affordable = int(left // (c + 1))  # a rollout and the demonstration it may lead to
-        action: dict[str, str] = {}
-        for t in tasks:
-            r = records[t]
-            if r.demos_added >= strategy.cap:
-                continue
-            may_evaluate = r.eval_episodes < strategy.max_eval_episodes_per_task and affordable >= 1
-            u, p = optimistic_failure(t), failure_mean(posterior[t])
-            if may_evaluate and u >= threshold:
-                action[t] = "evaluate"
-            elif worth * p >= 1 and left >= 1:
-                action[t] = "fresh"
-            elif may_evaluate and strategy.probe_unsure and worth * u >= 1:
-                action[t] = "probe"
-        if not action:
-            return
-        # The budget the closed tasks did not spend is shared by the acting ones, by expected failure rate.
-        free = strategy.budget - sum(spent(t) for t in tasks if t not in action)
-        mass = sum(failure_mean(posterior[t]) for t in action)
-        lacking = {t: free * failure_mean(posterior[t]) / mass - spent(t) for t in action}
-        task = max(action, key=lambda t: (lacking[t], -tasks.index(t)))
-        if action[task] == "evaluate":  # one state at first, more as it fails
-            evaluate(task, min(max(1, records[task].failures), affordable))
-        elif action[task] == "fresh":
-            demonstrate_from_fresh_state(task)
-        else:
-            probe(task)
