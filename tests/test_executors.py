@@ -225,10 +225,12 @@ def wait_for(condition, what: str, proc: subprocess.Popen, timeout: float = 300)
         time.sleep(0.1)
 
 
-def evaluations_so_far(root: Path) -> int:
+def evaluations_so_far(root: Path, kind: str = "eval") -> int:
     journal = root / "meta" / "adademo" / "journal-round-001.jsonl"
     return (
-        sum('"type": "eval"' in line for line in journal.read_text().splitlines()) if journal.exists() else 0
+        sum(f'"type": "{kind}"' in line for line in journal.read_text().splitlines())
+        if journal.exists()
+        else 0
     )
 
 
@@ -270,12 +272,23 @@ def test_a_killed_driver_resumes_from_the_journal_to_the_same_round(
     proc = subprocess.Popen(
         [str(BIN / "adademo-expand"), *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
-    wait_for(lambda: evaluations_so_far(resumed) >= 3, "three evaluations", proc)
+    # Killed once it has committed shards to its journal (merged later, 100 at a time, or at the round's end).
+    wait_for(lambda: evaluations_so_far(resumed, "shards") >= 1, "a commit of shards", proc)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert not read_ledger(resumed)  # the round was cut short
+    journal = resumed / "meta" / "adademo" / "journal-round-001.jsonl"
+    committed = [
+        (task, seed)
+        for line in journal.read_text().splitlines()
+        if '"type": "shards"' in line
+        for _, task, seed in json.loads(line)["shards"]
+    ]
     run_cli("adademo-expand", *args)
     same_round(reference, resumed, 1)
+    # The rerun merged what the killed run committed: none of those demonstrations was collected again.
+    demos = [(e["task"], e["seed"]) for e in read_round_evaluations(resumed, 1) if e["type"] == "demo"]
+    assert committed and all(demos.count(key) == 1 for key in committed)
     state = json.loads((resumed / "meta" / "info.json").read_text())
     assert state["total_episodes"] == len(read_episode_metadata(reference))
 

@@ -5,6 +5,7 @@ episodes, and the same command must then finish the round as an untouched one wo
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -18,7 +19,7 @@ from conftest import BIN, run_cli
 from test_executors import same_round
 
 from adademo_lerobot.dataset.layout import TXN_FILE
-from adademo_lerobot.dataset.ledger import read_ledger
+from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 
 psutil = pytest.importorskip("psutil")
@@ -57,6 +58,26 @@ def kill_node(command: psutil.Process, temp_dir: str) -> int:
     return len(killed)
 
 
+def journaled_commits(root: Path) -> list[tuple[str, int]]:
+    """The demonstrations a running round has committed to its journal (merged into the dataset later)."""
+    journal = root / "meta" / "adademo" / "journal-round-001.jsonl"
+    lines = journal.read_text().splitlines() if journal.exists() else []
+    return [
+        (task, seed)
+        for line in lines
+        if '"type": "shards"' in line
+        for _, task, seed in json.loads(line)["shards"]
+    ]
+
+
+def merged_not_collected_again(root: Path, committed: list[tuple[str, int]]) -> None:
+    """After the rerun, every demonstration the stopped run committed is in the dataset, collected once."""
+    eps = read_episode_metadata(root)
+    assert set(committed) <= set(zip(eps.task, eps["adademo/seed"], strict=True))
+    demos = [(e["task"], e["seed"]) for e in read_round_evaluations(root, 1) if e["type"] == "demo"]
+    assert all(demos.count(key) == 1 for key in committed)
+
+
 def expand_args(dataset: Path, ckpt: Path) -> list[str]:
     """A round of adademo-expand on `dataset` that commits after every demonstration (a loss mid-round finds
     committed and uncommitted work)."""
@@ -92,8 +113,6 @@ def lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, te
 
     args = [*expand_args(root, ckpt), "--executor=ray", "--ray.num_workers=2"]
     env = {**os.environ, "RAY_TMPDIR": temp_dir, "RAY_USAGE_STATS_ENABLED": "0"}
-    episodes_dir = root / "meta" / "episodes"
-    files_before = len(list(episodes_dir.rglob("*.parquet")))
     before = read_episode_metadata(root)
     stderr_path = tmp_path / "stderr.txt"
     proc = None
@@ -104,8 +123,8 @@ def lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, te
             )
             command = psutil.Process(proc.pid)
             deadline = time.time() + 300
-            # A commit done (a second begun) while the actors still have the round's work.
-            while len(list(episodes_dir.rglob("*.parquet"))) < files_before + 2:
+            # Two commits journaled while the actors still have the round's work.
+            while len(journaled_commits(root)) < 2:
                 assert time.time() < deadline and proc.poll() is None, (
                     "expand ended before it could be killed"
                 )
@@ -126,13 +145,15 @@ def lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, te
         if proc is not None and proc.poll() is None:
             proc.kill()
 
-    # The dataset is as the last commit left it: no write half done, stock LeRobot reads every episode.
-    assert not (root / TXN_FILE).exists()  # the command let a commit in progress finish before it left
+    # The dataset is as the last merge left it (the committed shards are merged when the round ends or resumes):
+    # no write half done, stock LeRobot reads every episode.
+    assert not (root / TXN_FILE).exists()  # the command let a merge in progress finish before it left
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    committed = read_episode_metadata(root)
-    assert LeRobotDataset("local/demo", root=root).num_episodes == len(committed) > len(before)
-    kept = set(zip(committed.task, committed["adademo/seed"], strict=True))
+    merged = read_episode_metadata(root)
+    assert LeRobotDataset("local/demo", root=root).num_episodes == len(merged) >= len(before)
+    kept = set(zip(merged.task, merged["adademo/seed"], strict=True))
+    committed = journaled_commits(root)
 
     # The same command finishes the round: what an untouched round gives, with nothing lost or twice.
     rerun = subprocess.run(
@@ -144,6 +165,7 @@ def lose_the_node_mid_round_then_rerun(reach_push_dataset, act_run, tmp_path, te
     new = eps[eps["adademo/round"] == 1]
     assert not new.duplicated(["task", "adademo/seed"]).any()  # no initial state twice
     assert sorted({r["round"] for r in read_ledger(root)}) == [1]
+    merged_not_collected_again(root, committed)
     run_cli("adademo-expand", *expand_args(reference, ckpt))
     same_round(reference, root, 1)
 
@@ -167,8 +189,6 @@ def test_a_lost_worker_node_of_a_two_node_cluster_ends_the_command_and_the_same_
         worker_node = cluster.add_node(num_cpus=1)
         cluster.wait_for_nodes()
         ray_args = ["--executor=ray", f"--ray.address={cluster.address}", "--ray.num_workers=2"]
-        episodes_dir = root / "meta" / "episodes"
-        files_before = len(list(episodes_dir.rglob("*.parquet")))
         before = read_episode_metadata(root)
         stderr_path = tmp_path / "stderr.txt"
         with stderr_path.open("w") as stderr:
@@ -177,8 +197,8 @@ def test_a_lost_worker_node_of_a_two_node_cluster_ends_the_command_and_the_same_
             )
             try:
                 deadline = time.time() + 300
-                # Two commits merged (shards from both nodes) while the actors still have the round's work.
-                while len(list(episodes_dir.rglob("*.parquet"))) < files_before + 2:
+                # Two commits journaled (shards from both nodes) while the actors still have the round's work.
+                while len(journaled_commits(root)) < 2:
                     assert time.time() < deadline and proc.poll() is None, (
                         "expand ended before the node was lost"
                     )
@@ -199,12 +219,13 @@ def test_a_lost_worker_node_of_a_two_node_cluster_ends_the_command_and_the_same_
         ), err[-3000:]
         assert "run the same command" in lines[-1] and "Traceback" not in err
 
-        # The dataset is as the last commit left it, and stock LeRobot reads every episode.
+        # The dataset is as the last merge left it, and stock LeRobot reads every episode.
         assert not (root / TXN_FILE).exists()
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-        committed = read_episode_metadata(root)
-        assert LeRobotDataset("local/demo", root=root).num_episodes == len(committed) > len(before)
+        merged = read_episode_metadata(root)
+        assert LeRobotDataset("local/demo", root=root).num_episodes == len(merged) >= len(before)
+        committed = journaled_commits(root)
 
         # With a node back, the same command finishes the round as an untouched local round does.
         cluster.add_node(num_cpus=1)
@@ -214,6 +235,7 @@ def test_a_lost_worker_node_of_a_two_node_cluster_ends_the_command_and_the_same_
         )
         assert rerun.returncode == 0, rerun.stderr[-3000:]
         assert "written by the Ray workers, merged here" in rerun.stdout
+        merged_not_collected_again(root, committed)
     finally:
         cluster.shutdown()
     assert not root.with_name(f".{root.name}.adademo-shards").exists()

@@ -161,13 +161,13 @@ def test_a_merge_killed_before_its_commit_is_rolled_back_when_the_dataset_is_ope
     merger = ShardMerger(DemoDataset.open("local/x", root))
     merger.merge(shards[:2], 1, "budgeted", "scripted")
     before = file_digests(root)
-    # The kill comes where a merge has written everything and not committed yet: the end of `_Merge.write`.
+    # The kill comes where a merge has written everything and not committed yet: after its last write (info).
     script = f"""
 import os, pickle, sys
 from adademo_lerobot.dataset import shard_merge as S
 from adademo_lerobot.dataset.store import DemoDataset
-written = S._Merge.write
-S._Merge.write = lambda self: (written(self), os._exit(9))
+written = S.atomic_write_json
+S.atomic_write_json = lambda *args: (written(*args), os._exit(9))
 S.merge_into(DemoDataset.open("local/x", {str(root)!r}), pickle.loads(sys.stdin.buffer.read()), 1, "b", "s")
 """
     proc = subprocess.run([sys.executable, "-c", script], input=pickle.dumps(shards[2:]), capture_output=True)
@@ -201,7 +201,7 @@ def test_a_merge_that_cannot_finish_changes_nothing(tmp_path):
     root = tmp_path / "ds"
     DemoDataset("local/x", root, suite.config).append(suite, demos[:1], 0, "initial", "scripted")
     shards = [write_shard(tmp_path / "shards", suite, d) for d in demos[1:]]
-    shutil.rmtree(shards[1].path)  # written on a node this machine cannot see
+    Path(shards[1].path).unlink()  # written on a node this machine cannot see
     before = file_digests(root)
     with pytest.raises(AdaDemoError, match="which this machine cannot see: .*--ray.worker_writes=false"):
         merge_into(DemoDataset.open("local/x", root), shards, 1, "budgeted", "scripted")
@@ -243,3 +243,121 @@ def test_a_state_shard_is_what_lerobots_writer_writes(tmp_path):
             lerobots.start_step,
             lerobots.is_correction,
         )
+
+
+def a_round_appended(tmp_path: Path, suite, demos: list) -> tuple[Path, Path]:
+    """Two datasets of the first two demonstrations: one with the rest appended as round 1 (what a round's merges
+    must give), one to merge them into."""
+    appended, merged = tmp_path / "appended", tmp_path / "merged"
+    for root in (appended, merged):
+        DemoDataset("local/x", root, suite.config).append(suite, demos[:2], 0, "initial", "scripted")
+    DemoDataset.open("local/x", appended).append(suite, demos[2:], 1, "budgeted", "scripted")
+    return appended, merged
+
+
+def test_a_stopped_round_merges_the_shards_its_journal_committed_and_goes_on_from_them(tmp_path):
+    """With a journal, a commit of shards is a journal line and merges come later, in larger batches. A run
+    stopped before it merged (two commits journaled, one demonstration buffered) leaves the dataset as it was;
+    the next run merges the committed shards (none collected again), replaces a commit whose shard a crash lost,
+    and ends with the dataset that appending every demonstration in order gives."""
+    from adademo_lerobot.dataset.ledger import RoundJournal
+    from adademo_lerobot.dataset.shards import shard_folder
+    from adademo_lerobot.strategies.round_commits import OrderedAppender, merge_journaled_shards
+
+    suite = MetaWorldSuiteConfig(tasks="reach-v3,push-v3").build()
+    demos = demos_of(suite, 10)
+    appended, merged = a_round_appended(tmp_path, suite, demos)
+    folder = shard_folder(merged, 1)
+
+    def run(new_demos: list) -> tuple[OrderedAppender, int]:
+        """A run of the round: first what a stopped run committed (how many), then these demonstrations."""
+        dataset = DemoDataset.open("local/x", merged)
+        appender = OrderedAppender(
+            dataset, suite, 1, "budgeted", "scripted", 2, None, RoundJournal(merged, 1)
+        )
+        resumed = merge_journaled_shards(appender)
+        for demo in new_demos:
+            appender.add(demo.task, write_shard(folder, suite, demo))
+        return appender, resumed
+
+    def dataset_files() -> dict:
+        return {rel: digest for rel, digest in file_digests(merged).items() if "journal" not in rel}
+
+    before = dataset_files()
+    assert run(demos[2:7])[1] == 0  # stopped: 2 + 2 committed, the fifth still buffered
+    assert dataset_files() == before  # nothing merged yet: the dataset as it was
+    journal = RoundJournal(merged, 1)
+    assert [len(e["shards"]) for e in journal.of_type("shards")] == [2, 2]
+    lost = journal.of_type("shards")[1]["shards"][1][0]
+    Path(lost).unlink()  # a machine crash lost the fourth shard its journal committed
+
+    # The next run merges three, collects the lost one and the rest again, and is stopped before a merge.
+    assert run(demos[5:9])[1] == 3
+    assert read_episode_metadata(merged)["adademo/seed"].tolist()[2:] == [d.seed for d in demos[2:5]]
+    third, resumed = run(
+        []
+    )  # merges what the second run committed: the lost one's replacement and three more
+    assert resumed == 4
+    assert merge_journaled_shards(third) == 0  # what is merged is not merged again
+    third, resumed = run(demos[9:])
+    assert resumed == 0
+    third.close()
+    assert_same_dataset(appended, merged)
+
+    DemoDataset.open("local/x", merged).append(suite, demos[:1], 2, "budgeted", "scripted")
+    RoundJournal(merged, 1).append(
+        {"type": "shards", "at": 3, "shards": [[lost, demos[2].task, 12345]]}, sync=True
+    )
+    with pytest.raises(AdaDemoError, match="changed since round 1 stopped: its episode 3 is .* seed 12345"):
+        merge_journaled_shards(
+            OrderedAppender(
+                DemoDataset.open("local/x", merged), suite, 1, "b", "s", 2, None, RoundJournal(merged, 1)
+            )
+        )
+
+
+def test_merges_laid_out_ahead_and_written_elsewhere_commit_in_order(tmp_path, monkeypatch):
+    """A round's driver lays merges out before the earlier ones are committed, and their files are written
+    elsewhere meanwhile (a Ray worker; here threads, held until every merge is laid out, so that four are in
+    flight at once, the first bringing a new task). Committed in order, they give what appends give."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from adademo_lerobot.dataset.ledger import RoundJournal
+    from adademo_lerobot.dataset.shard_merge import prepare
+    from adademo_lerobot.dataset.shards import shard_folder
+    from adademo_lerobot.strategies import round_commits
+
+    monkeypatch.setattr(round_commits, "MERGE_EVERY", 2)
+    suite = MetaWorldSuiteConfig(tasks="reach-v3,push-v3,drawer-close-v3").build()
+    demos = demos_of(suite, 10)
+    appended, merged = a_round_appended(tmp_path, suite, demos)
+
+    gate, pool, laid_out = threading.Event(), ThreadPoolExecutor(2), []
+
+    class Writing:  # a merge being written by another thread, as a Ray worker's result is pending
+        def __init__(self, plan):
+            self.future = pool.submit(lambda: (gate.wait(), prepare(plan))[1])
+
+        def ready(self) -> bool:
+            return self.future.done()
+
+        def result(self) -> dict:
+            return self.future.result()
+
+    def prepare_merge(plan):
+        laid_out.append(plan.first)
+        return Writing(plan)
+
+    journal = RoundJournal(merged, 1)
+    dataset = DemoDataset.open("local/x", merged)
+    appender = round_commits.OrderedAppender(
+        dataset, suite, 1, "budgeted", "scripted", 1, None, journal, prepare_merge
+    )
+    for demo in demos[2:]:
+        appender.add(demo.task, write_shard(shard_folder(merged, 1), suite, demo))
+    assert laid_out == [2, 4, 6, 8] and read_episode_metadata(merged).shape[0] == 2  # none committed yet
+    gate.set()
+    appender.close()
+    assert_same_dataset(appended, merged)
+    assert not list(shard_folder(merged, 1).iterdir())  # merged shards and staged files are gone

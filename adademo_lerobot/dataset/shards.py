@@ -1,10 +1,15 @@
 """Episodes written where they are collected: a worker writes each demonstration it collects as a shard in a folder
 every node can reach, and a commit merges finished shards into the dataset (`dataset/shard_merge.py`). A shard of
-state frames is the episode's table as an Arrow file, with its episode row and stats computed as LeRobot's writer
-computes them; a shard with a camera is a one-episode LeRobot dataset (its writer encodes the video).
+state frames is one Arrow file: the episode's table, with its episode row and stats (computed as LeRobot's writer
+computes them) in the file's schema metadata; a shard with a camera is a one-episode LeRobot dataset (its writer
+encodes the video) with the same description beside it (`shard.json`). Either way a shard describes itself, so a
+round resumed after a stop can merge the shards its journal committed without the process that fetched them
+(`read_shard`).
 
-A shard is whole or absent: it is built in a sibling folder and renamed into place, so a worker killed mid-shard
-leaves only a hidden `.*.partial` or `.*.adademo-creating` folder, which nothing merges.
+A shard is whole or absent: it is built under a hidden sibling name and renamed into place, so a worker killed
+mid-shard leaves only a hidden `.*.partial` or `.*.adademo-creating` file or folder, which nothing merges. A state
+shard is a single file so that removing it once merged is one unlink, not a folder's (`remove_shards`: on the
+machine of benchmarks/results/loop_speed.md a folder's removal cost the driver ~3 ms, more than its merge).
 """
 
 from __future__ import annotations
@@ -26,7 +31,8 @@ from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.features import dataset_features
 
 SHARD_REPO_ID = "local/adademo-shard"
-FRAMES_FILE = "frames.arrow"
+SHARD_FILE = "shard.json"  # a camera shard's description, beside its dataset
+SHARD_KEY = b"adademo_shard"  # a state shard's description, in its Arrow file's schema metadata
 
 
 @dataclass
@@ -41,7 +47,9 @@ class Shard:
     is_correction: bool
     row: dict  # its meta/episodes row but its `stats/*` columns (the merge makes them from `stats`)
     stats: dict  # its episode's stats (numpy arrays, as LeRobot's `aggregate_stats` takes them)
-    data_file: str  # its frames, relative to `path`: LeRobot's data file, or an Arrow file of the same table
+    data_file: (
+        str  # its frames, relative to `path` (LeRobot's data file); "" when `path` is an Arrow file of them
+    )
     by_policy: bool = False  # a kept policy rollout (--keep_successes), not an expert's demonstration
 
     def __getstate__(self) -> dict:
@@ -67,6 +75,42 @@ class Shard:
         self.__dict__.update({**state, "stats": stats})
 
 
+def _description(shard: Shard) -> str:
+    """The shard as `read_shard` rebuilds it (the stats as they travel, exactly)."""
+    state = shard.__getstate__()
+    layout, packed = state["stats"]
+    state = {k: v for k, v in state.items() if k != "path"} | {"stats": [layout, packed.tolist()]}
+    return json.dumps(state, default=lambda x: x.tolist())
+
+
+def read_shard(path: str | Path) -> Shard | None:
+    """The shard at `path` as its worker returned it; None when it is not whole (absent, or cut short)."""
+    path = Path(path)
+    try:
+        if path.is_dir():
+            description = (path / SHARD_FILE).read_text()
+        else:
+            with pa.OSFile(str(path)) as source:
+                description = pa.ipc.open_file(source).schema.metadata[SHARD_KEY]
+        state = json.loads(description)
+    except (OSError, ValueError, KeyError, TypeError, pa.ArrowInvalid):
+        return None
+    if state["data_file"] and not (path / state["data_file"]).is_file():
+        return None
+    shard = Shard.__new__(Shard)
+    layout, packed = state["stats"]
+    shard.__setstate__(state | {"path": str(path), "stats": (layout, np.asarray(packed, np.float64))})
+    return shard
+
+
+def load_shard(path: str | Path) -> Shard:
+    """`read_shard`, or one clear error: a folder this machine cannot see, or a shard that is not whole."""
+    shard = read_shard(path)
+    if shard is None:
+        raise _unseen(Path(path)) if not Path(path).exists() else AdaDemoError(f"shard {path} is not whole")
+    return shard
+
+
 def shard_folder(root: Path, round_index: int) -> Path:
     """Where a round's shards go: beside the dataset (as reachable as the dataset is), never inside it."""
     return _shards_root(root) / f"round-{round_index:03d}"
@@ -85,7 +129,10 @@ def _shards_root(root: Path) -> Path:
 def remove_shards(shards: list[Shard]) -> None:
     """Merged shards are deleted (their episodes are in the dataset now)."""
     for shard in shards:
-        shutil.rmtree(shard.path, ignore_errors=True)
+        if shard.data_file:
+            shutil.rmtree(shard.path, ignore_errors=True)
+        else:
+            Path(shard.path).unlink(missing_ok=True)
 
 
 def write_shard(folder: Path, suite, demo: Demonstration) -> Shard:
@@ -94,7 +141,7 @@ def write_shard(folder: Path, suite, demo: Demonstration) -> Shard:
     features = dataset_features(suite)
     if any(ft["dtype"] in ("video", "image") for ft in features.values()):
         return _write_with_lerobot(path, suite, demo)
-    return _write_frames(path, suite, demo, features)
+    return _write_frames(path.with_name(f"{path.name}.arrow"), suite, demo, features)
 
 
 def _write_with_lerobot(path: Path, suite, demo: Demonstration) -> Shard:
@@ -109,7 +156,9 @@ def _write_with_lerobot(path: Path, suite, demo: Demonstration) -> Shard:
     row = {k: v for k, v in row.items() if not k.startswith("stats/")}  # the stats travel once, as `stats`
     stats = cast_stats_to_numpy(json.loads((path / "meta" / "stats.json").read_text()))
     data = the_one(path, "data/chunk-*/file-*.parquet").relative_to(path)
-    return _shard(path, demo, row, stats, str(data))
+    shard = _shard(path, demo, row, stats, str(data))
+    (path / SHARD_FILE).write_text(_description(shard))
+    return shard
 
 
 def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Shard:
@@ -139,11 +188,6 @@ def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Sha
     stats = compute_episode_stats(episode, features)
     schema = _as_parquet_reads_it(get_hf_features_from_features(features).arrow_schema)
     table = pa.Table.from_arrays([_column(episode[f.name], f.type) for f in schema], schema=schema)
-    partial = path.with_name(f".{path.name}.partial")  # whole or absent: renamed into place once written
-    partial.mkdir(parents=True)
-    with pa.OSFile(str(partial / FRAMES_FILE), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
-        writer.write_table(table)
-    os.replace(partial, path)
     row = {
         "episode_index": 0,
         "tasks": [demo.task],
@@ -156,7 +200,16 @@ def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Sha
         "meta/episodes/file_index": 0,
         **provenance_columns(demo, 0, "shard", "", suite.name),
     }
-    return _shard(path, demo, row, stats, FRAMES_FILE)
+    shard = _shard(path, demo, row, stats, "")
+    table = table.replace_schema_metadata(
+        (table.schema.metadata or {}) | {SHARD_KEY: _description(shard).encode()}
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")  # whole or absent: renamed into place once written
+    with pa.OSFile(str(partial), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
+        writer.write_table(table)
+    os.replace(partial, path)
+    return shard
 
 
 def _as_parquet_reads_it(schema: pa.Schema) -> pa.Schema:
@@ -194,23 +247,28 @@ def _shard(path: Path, demo: Demonstration, row: dict, stats: dict, data_file: s
 
 def read_frames(shard: Shard) -> pa.Table:
     """A finished shard's frames, as LeRobot's data file holds them (schema metadata included)."""
-    path = Path(shard.path) / shard.data_file
+    path = Path(shard.path) / shard.data_file if shard.data_file else Path(shard.path)
+    if shard.data_file:
+        # If it is not there, raises saying which: a folder this machine cannot see, or a shard that is not whole.
+        return pq.ParquetFile(path if path.is_file() else the_one(Path(shard.path), shard.data_file)).read()
     if not path.is_file():
-        # Raises, saying which: a folder this machine cannot see, or a shard that is not whole.
-        the_one(Path(shard.path), shard.data_file)
-    if path.suffix == ".arrow":
-        with pa.OSFile(str(path)) as source:
-            return pa.ipc.open_file(source).read_all()
-    return pq.ParquetFile(path).read()
+        raise _unseen(path)
+    with pa.OSFile(str(path)) as source:
+        table = pa.ipc.open_file(source).read_all()
+    return table.replace_schema_metadata({k: v for k, v in table.schema.metadata.items() if k != SHARD_KEY})
+
+
+def _unseen(path: Path) -> AdaDemoError:
+    return AdaDemoError(
+        f"a Ray worker wrote a demonstration to {path}, which this machine cannot see: keep the dataset on "
+        "storage every Ray node reaches, or pass --ray.worker_writes=false (frames then come back to this "
+        "process); the same command resumes"
+    )
 
 
 def the_one(folder: Path, pattern: str) -> Path:
     if not folder.is_dir():
-        raise AdaDemoError(
-            f"a Ray worker wrote a demonstration to {folder}, which this machine cannot see: keep the dataset on "
-            "storage every Ray node reaches, or pass --ray.worker_writes=false (frames then come back to this "
-            "process); the same command resumes"
-        )
+        raise _unseen(folder)
     files = sorted(folder.glob(pattern))
     if len(files) != 1:
         raise AdaDemoError(

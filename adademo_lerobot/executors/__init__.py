@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.collectors.takeover import TakeoverArgs
@@ -21,6 +21,9 @@ from adademo_lerobot.core.episodes import CollectionResult, EpisodeRecord
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.executors.worker import EpisodeWorker
 from adademo_lerobot.suites import TaskSuite
+
+if TYPE_CHECKING:
+    from adademo_lerobot.dataset.shard_merge import MergePlan
 
 EXECUTORS = ("local", "ray")
 
@@ -75,6 +78,7 @@ class ExecutionArgs(ComputeArgs):
 
 class Pending(Protocol):
     def result(self) -> Any: ...
+    def ready(self) -> bool: ...  # whether `result()` would return without waiting for a worker
 
 
 class Lazy:
@@ -87,6 +91,9 @@ class Lazy:
         if not self._done:
             self._value, self._done, self._compute = self._compute(), True, None
         return self._value
+
+    def ready(self) -> bool:
+        return True  # computed here, when read
 
 
 class Executor(Protocol):
@@ -108,6 +115,9 @@ class Executor(Protocol):
         start_state: list[float] | None = None,
         takeover: TakeoverArgs | None = None,
     ) -> Pending: ...
+    def prepare_merge(
+        self, plan: MergePlan
+    ) -> Pending: ...  # writes a merge's files (`dataset/shard_merge.py`)
     def close(self) -> None: ...
 
 
@@ -151,6 +161,9 @@ class LocalExecutor:
         takeover: TakeoverArgs | None = None,
     ) -> Lazy:
         return Lazy(lambda: self.worker.collect(task, seed, start_state, takeover))
+
+    def prepare_merge(self, plan: MergePlan) -> Lazy:
+        return Lazy(lambda: self.worker.prepare_merge(plan))
 
     def close(self) -> None:
         self.worker.close()

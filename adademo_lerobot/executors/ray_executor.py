@@ -168,6 +168,11 @@ class RayPending:
     def result(self):
         return self._watch.get(self.ref)
 
+    def ready(self) -> bool:
+        import ray
+
+        return bool(ray.wait([self.ref], timeout=0)[0])
+
 
 class RayExecutor:
     parallel_tasks = True
@@ -251,6 +256,10 @@ class RayExecutor:
         takeover: TakeoverArgs | None = None,
     ) -> RayPending:
         return self._submit("collect", task, seed, start_state, takeover, self.shard_folder)
+
+    def prepare_merge(self, plan) -> RayPending:
+        """A worker writes a planned merge's files beside the shards (`dataset/shard_merge.py`)."""
+        return self._submit("prepare_merge", plan)
 
     def worker_pids(self) -> list[int]:
         return self._watch.get([a.pid.remote() for a in self.actors])

@@ -127,6 +127,12 @@ class EpisodeWorker:
             result.demonstration = self._as_result(result.demonstration, shard_folder)
         return result
 
+    def prepare_merge(self, plan) -> dict:
+        """Write a planned merge's files (`dataset/shard_merge.py`); returns its episodes' aggregated stats."""
+        from adademo_lerobot.dataset.shard_merge import prepare
+
+        return prepare(plan)
+
     def pid(self) -> int:
         return os.getpid()
 

@@ -221,6 +221,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     if round_index in ledger_rounds(root):
         print(f"round {round_index} is already complete (meta/adademo/rounds.jsonl)")
         return []
+    ctx.resume_commits()  # what a stopped run committed to the journal is merged first
     started = journal.of_type("start")
     decided = strategy.start(ctx, started[0] if started else None)
     journal.start(
@@ -234,8 +235,8 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     )
     started_at = time.perf_counter()
     records = strategy.expand(ctx)
+    ctx.close()  # every demonstration the round committed is in the dataset
     if not strategy.commits_by_task:  # one loop over the whole round
-        ctx.flush()
         bar.update(len(suite.tasks))
         share_round_time(records, time.perf_counter() - started_at, journal)
     bar.close()

@@ -1,7 +1,7 @@
 """What a strategy's round gets (`RoundContext`, the simulated round): the side effects a round needs, each
 journaled so an interrupted round resumes exactly: evaluating the policy on initial states, asking the expert for
 a demonstration from one state, and appending demonstrations to the dataset in crash-safe commits, in the order
-the strategy asked for them (`OrderedAppender`)."""
+the strategy asked for them (`round_commits.OrderedAppender`)."""
 
 from __future__ import annotations
 
@@ -14,15 +14,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from adademo_lerobot.collectors.takeover import TakeoverArgs
-from adademo_lerobot.core.episodes import Demonstration, EpisodeRecord, TaskRoundRecord
+from adademo_lerobot.core.episodes import EpisodeRecord, TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.seeds import fresh_state_seed
 from adademo_lerobot.dataset.ledger import RoundJournal
-from adademo_lerobot.dataset.shard_merge import ShardMerger
-from adademo_lerobot.dataset.shards import Shard, remove_shards, shard_folder
+from adademo_lerobot.dataset.metadata import has_dataset
+from adademo_lerobot.dataset.shards import shard_folder
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import Executor, Pending
 from adademo_lerobot.strategies.bookkeeping import JournaledRound, committed_answers, demo_entry
+from adademo_lerobot.strategies.round_commits import OrderedAppender, merge_journaled_shards
 from adademo_lerobot.suites.base import TaskSuite, full_state_step
 
 # A task whose expert keeps failing stops after this many fresh initial states per requested demo.
@@ -59,74 +60,6 @@ class RoundAbortedError(Exception):
     """Raised in a task's loop when another task's loop failed: the round stops and that failure is reported."""
 
 
-class OrderedAppender:
-    """Commits demonstrations to the dataset in the order a sequential round would: task by task in the suite's
-    order, each task's demos in the order its loop asked for them, a commit every `commit_every` demos and at
-    the end of each task. Tasks whose loops run at once (Ray executor) hold their demos until every earlier task
-    is done, so the dataset's episode order does not depend on the executor."""
-
-    def __init__(
-        self,
-        dataset: DemoDataset,
-        suite: TaskSuite,
-        round_index: int,
-        source: str,
-        collector: str,
-        commit_every: int,
-        tasks: list[str],
-        before_commit: Callable[[], None] | None = None,
-    ):
-        self.dataset, self.suite = dataset, suite
-        # e.g. the journal's entries made durable before the demos they count
-        self.before_commit = before_commit
-        self.round_index, self.source, self.collector = round_index, source, collector
-        self.commit_every = max(1, commit_every)
-        self.by_task = tasks is not None  # None: commit in the order demos arrive (one loop over all tasks)
-        self.order = list(tasks or [])
-        self._head = 0  # index in `order` of the first unfinished task
-        self._held: dict[str, list[Demonstration]] = {t: [] for t in self.order}
-        self._finished: set[str] = set()
-        self._buffer: list[Demonstration | Shard] = []
-        self._lock = threading.RLock()
-        self.merged_shards = 0  # demonstrations the workers wrote themselves (merged, not appended)
-        self._merger = ShardMerger(dataset)
-
-    def add(self, task: str, demo: Demonstration) -> None:
-        with self._lock:
-            if not self.by_task or (self._head < len(self.order) and task == self.order[self._head]):
-                self._buffer.append(demo)
-                if len(self._buffer) >= self.commit_every:
-                    self.flush()
-            else:
-                self._held[task].append(demo)
-
-    def finish(self, task: str) -> None:
-        with self._lock:
-            if not self.by_task:
-                self.flush()
-                return
-            self._finished.add(task)
-            while self._head < len(self.order) and self.order[self._head] in self._finished:
-                self.flush()  # the end of a task is a commit point
-                self._head += 1
-                if self._head < len(self.order):
-                    for demo in self._held.pop(self.order[self._head]):
-                        self.add(self.order[self._head], demo)
-
-    def flush(self) -> None:
-        with self._lock:
-            if self._buffer and self.before_commit is not None:
-                self.before_commit()
-            if self._buffer and isinstance(self._buffer[0], Shard):
-                self._merger.merge(self._buffer, self.round_index, self.source, self.collector)
-                remove_shards(self._buffer)
-                self.merged_shards += len(self._buffer)
-                self._buffer = []
-            elif self._buffer:
-                self.dataset.append(self.suite, self._buffer, self.round_index, self.source, self.collector)
-                self._buffer = []
-
-
 @dataclass
 class RoundContext(JournaledRound):
     """A simulated round (`algorithm.InnerLoop`): the policy evaluated and the expert run by the executor on the
@@ -161,7 +94,7 @@ class RoundContext(JournaledRound):
     eval_env_steps: int = (
         0  # env steps of the evaluations this context ran (not those reused from the journal)
     )
-    sync_each_entry = False  # the journal is synced before each commit (`OrderedAppender.before_commit`)
+    sync_each_entry = False  # the journal is synced at each commit (`OrderedAppender.flush`)
 
     def __post_init__(self) -> None:
         self._appender = OrderedAppender(
@@ -172,13 +105,30 @@ class RoundContext(JournaledRound):
             self.collector_name,
             self.commit_every,
             self.suite.tasks if self.commit_by_task else None,
-            self.journal.sync if self.journal else None,
+            self.journal,
+            self.executor.prepare_merge,
         )
         self._committed, self._kept = committed_answers(self.dataset.root, self.round_index)
+        if self.journal is None:
+            self._remove_stopped_shards()
         if self.executor.writes_shards and self.dataset.can_merge(self.suite):
-            folder = shard_folder(self.dataset.root, self.round_index)
-            shutil.rmtree(folder, ignore_errors=True)  # a stopped run's shards: never merged, collected again
-            self.executor.shard_folder = str(folder)
+            self.executor.shard_folder = str(shard_folder(self.dataset.root, self.round_index))
+
+    def _remove_stopped_shards(self) -> None:
+        # A stopped run's shards its journal did not commit: never merged, collected again.
+        shutil.rmtree(shard_folder(self.dataset.root, self.round_index), ignore_errors=True)
+
+    def resume_commits(self) -> None:
+        """Before a round (re)starts: the shards a stopped run committed to the journal are merged (the round goes
+        on from them), the others removed."""
+        journaled = self.journal is not None and self.journal.exists() and has_dataset(self.dataset.root)
+        if journaled and merge_journaled_shards(self._appender):
+            self._committed, self._kept = committed_answers(self.dataset.root, self.round_index)
+        self._remove_stopped_shards()
+
+    def close(self) -> None:
+        """The end of the round: every demonstration committed is in the dataset."""
+        self._appender.close()
 
     def kept_successes(self, task: str) -> set[int]:
         """Seeds of the task's successful rollouts this round added to the dataset (--keep_successes)."""
@@ -323,10 +273,6 @@ class RoundContext(JournaledRound):
         """Commit the task's demonstrations (in order) and journal the time spent on it."""
         self._appender.finish(task)
         self._journal({"type": "time", "task": task, "seconds": time.perf_counter() - started})
-
-    def flush(self) -> None:
-        """Commit what is buffered (the end of a round-wide loop)."""
-        self._appender.flush()
 
     def run_tasks(self, work: Callable[[str], TaskRoundRecord]) -> list[TaskRoundRecord]:
         """`work(task)` for every task of the suite; records in suite order. One task after the other with the
