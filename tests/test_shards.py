@@ -224,15 +224,24 @@ def test_a_state_shard_is_what_lerobots_writer_writes(tmp_path):
         assert ours.row.keys() == lerobots.row.keys()
         for key, value in lerobots.row.items():
             np.testing.assert_array_equal(np.asarray(ours.row[key]), np.asarray(value), err_msg=key)
-        # As the driver gets it from a Ray worker: pickled (its stats travel packed in one array).
+        # As the driver gets it from a Ray worker: pickled, without its row and stats, which whoever merges it
+        # reads from the shard itself, exactly (dtypes included).
         sent = pickle.loads(pickle.dumps(ours))
-        assert ours.stats.keys() == lerobots.stats.keys() == sent.stats.keys()
+        assert sent.row is None and sent.stats is None and sent.num_frames == ours.num_frames
+        described = sent.described
+        assert described.row.keys() == ours.row.keys()
+        for (
+            key,
+            value,
+        ) in ours.row.items():  # NaN among the full states' values: equal as arrays, not as lists
+            np.testing.assert_array_equal(np.asarray(described.row[key]), np.asarray(value), err_msg=key)
+        assert ours.stats.keys() == lerobots.stats.keys() == described.stats.keys()
         for key, stats in lerobots.stats.items():
-            assert ours.stats[key].keys() == stats.keys() == sent.stats[key].keys()
+            assert ours.stats[key].keys() == stats.keys() == described.stats[key].keys()
             for name, value in stats.items():
                 np.testing.assert_array_equal(ours.stats[key][name], value, err_msg=f"{key} {name}")
-                assert sent.stats[key][name].dtype == ours.stats[key][name].dtype, f"{key} {name}"
-                np.testing.assert_array_equal(sent.stats[key][name], value, err_msg=f"{key} {name}")
+                assert described.stats[key][name].dtype == ours.stats[key][name].dtype, f"{key} {name}"
+                np.testing.assert_array_equal(described.stats[key][name], value, err_msg=f"{key} {name}")
         a, b = read_frames(ours), read_frames(lerobots)
         assert b.equals(pq.read_table(next(Path(lerobots.path).rglob("data/*/*.parquet"))))
         assert a.schema.equals(b.schema, check_metadata=True) and a.equals(b)

@@ -277,7 +277,7 @@ def prepare(plan: MergePlan, shards: list[Shard] | None = None) -> dict:
     from lerobot.datasets.io_utils import write_table_one_row_group_per_episode
     from lerobot.datasets.video_utils import concatenate_video_files, get_video_duration_in_s
 
-    shards = shards if shards is not None else [load_shard(p) for p in plan.paths]
+    shards = [s.described for s in shards] if shards is not None else [load_shard(p) for p in plan.paths]
     offsets = dict.fromkeys(plan.video_keys, 0.0)
     videos: dict[str, list[Path]] = {key: [] for key in plan.video_keys}  # each camera's shard files
     tables, rows, all_stats, frames = [], [], [], plan.first_frame

@@ -45,46 +45,47 @@ class Shard:
     num_frames: int
     start_step: int
     is_correction: bool
-    row: dict  # its meta/episodes row but its `stats/*` columns (the merge makes them from `stats`)
-    stats: dict  # its episode's stats (numpy arrays, as LeRobot's `aggregate_stats` takes them)
+    # Its meta/episodes row but its `stats/*` columns (the merge makes them from `stats`), and its episode's stats
+    # (numpy arrays, as LeRobot's `aggregate_stats` takes them). Both stay where the shard was written: a shard
+    # sent to another process (a Ray worker's result) carries None, and whoever merges it reads them from the
+    # shard itself (`load_shard`); they were most of the ~0.25 ms a result cost the driver to fetch.
+    row: dict | None
+    stats: dict | None
     data_file: (
         str  # its frames, relative to `path` (LeRobot's data file); "" when `path` is an Arrow file of them
     )
     by_policy: bool = False  # a kept policy rollout (--keep_successes), not an expert's demonstration
 
     def __getstate__(self) -> dict:
-        # On its way from a worker the stats travel as one array: Ray rebuilt each of the ~80 small arrays
-        # separately, ~0.5 ms per result on the driver.
-        layout = [
-            (f, k, v.shape, v.dtype.str) for f, by_stat in self.stats.items() for k, v in by_stat.items()
-        ]
-        values = [
-            np.asarray(v, np.float64).ravel() for by_stat in self.stats.values() for v in by_stat.values()
-        ]
-        packed = np.concatenate(values) if values else np.zeros(0)
-        return {**self.__dict__, "stats": (layout, packed)}
+        return {**self.__dict__, "row": None, "stats": None}
 
-    def __setstate__(self, state: dict) -> None:
-        layout, packed = state["stats"]
-        stats, at = {}, 0
-        for feature, stat, shape, dtype in layout:
-            size = math.prod(shape)
-            value = packed[at : at + size].reshape(shape)
-            stats.setdefault(feature, {})[stat] = value if dtype == "<f8" else value.astype(dtype)
-            at += size
-        self.__dict__.update({**state, "stats": stats})
+    @property
+    def described(self) -> Shard:
+        """This shard with its row and stats (read from the shard when they did not travel with it)."""
+        return self if self.row is not None else load_shard(self.path)
 
 
 def _description(shard: Shard) -> str:
-    """The shard as `read_shard` rebuilds it (the stats as they travel, exactly)."""
-    state = shard.__getstate__()
-    layout, packed = state["stats"]
-    state = {k: v for k, v in state.items() if k != "path"} | {"stats": [layout, packed.tolist()]}
+    """The shard as `read_shard` rebuilds it: its stats packed in one array, rebuilt exactly (dtypes and shapes)."""
+    layout = [(f, k, v.shape, v.dtype.str) for f, by_stat in shard.stats.items() for k, v in by_stat.items()]
+    values = [np.asarray(v, np.float64).ravel() for by_stat in shard.stats.values() for v in by_stat.values()]
+    packed = np.concatenate(values) if values else np.zeros(0)
+    state = {k: v for k, v in shard.__dict__.items() if k != "path"} | {"stats": [layout, packed.tolist()]}
     return json.dumps(state, default=lambda x: x.tolist())
 
 
+def _unpacked(layout: list, packed: np.ndarray) -> dict:
+    stats, at = {}, 0
+    for feature, stat, shape, dtype in layout:
+        size = math.prod(shape)
+        value = packed[at : at + size].reshape(shape)
+        stats.setdefault(feature, {})[stat] = value if dtype == "<f8" else value.astype(dtype)
+        at += size
+    return stats
+
+
 def read_shard(path: str | Path) -> Shard | None:
-    """The shard at `path` as its worker returned it; None when it is not whole (absent, or cut short)."""
+    """The shard at `path`, with its row and stats; None when it is not whole (absent, or cut short)."""
     path = Path(path)
     try:
         if path.is_dir():
@@ -97,10 +98,8 @@ def read_shard(path: str | Path) -> Shard | None:
         return None
     if state["data_file"] and not (path / state["data_file"]).is_file():
         return None
-    shard = Shard.__new__(Shard)
     layout, packed = state["stats"]
-    shard.__setstate__(state | {"path": str(path), "stats": (layout, np.asarray(packed, np.float64))})
-    return shard
+    return Shard(**(state | {"path": str(path), "stats": _unpacked(layout, np.asarray(packed, np.float64))}))
 
 
 def load_shard(path: str | Path) -> Shard:
