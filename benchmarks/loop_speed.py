@@ -149,7 +149,7 @@ def driver_costs(suite, executor, tmp: Path, demos: int) -> dict:
     }
 
 
-def two_nodes(suite, ckpt: str, args, base: dict) -> dict:
+def two_nodes(suite, ckpt: str, args, base: dict, shards: Path) -> dict:
     """The same units on a two-node Ray cluster on this machine (`ray.cluster_utils.Cluster`, one CPU per node, so
     one worker on each): results and shards cross a node boundary."""
     from ray.cluster_utils import Cluster
@@ -160,16 +160,18 @@ def two_nodes(suite, ckpt: str, args, base: dict) -> dict:
     try:
         cluster.add_node(num_cpus=1)
         cluster.wait_for_nodes()
-        ray, _, result = on_ray(suite, ckpt, args, base, RayArgs(address=cluster.address, num_workers=2))
+        ray_args = RayArgs(address=cluster.address, num_workers=2)
+        ray, _, result = on_ray(suite, ckpt, args, base, ray_args, shards)
         ray.close()
     finally:
         cluster.shutdown()
     return result
 
 
-def on_ray(suite, ckpt: str, args, base: dict, ray_args) -> tuple:
+def on_ray(suite, ckpt: str, args, base: dict, ray_args, shards: Path) -> tuple:
     """A Ray executor with the policy loaded (left open), its fixed cost in seconds (start Ray or connect, create
-    the actors, load the policy), and the units' results, checked equal to the local ones."""
+    the actors, load the policy), and the units' results, checked equal to the local ones; then the same
+    collection as a round runs it by default, each worker writing what it collects as a shard under `shards`."""
     from adademo_lerobot.collectors import ScriptedCollectorConfig
     from adademo_lerobot.executors import ExecutionArgs, make_executor
 
@@ -180,6 +182,12 @@ def on_ray(suite, ckpt: str, args, base: dict, ray_args) -> tuple:
     fixed = time.perf_counter() - start
     result = run_units(ray, suite, ckpt, args.episodes, args.demos, seed=1)
     assert result["outcomes"] == base["outcomes"] and result["demos"] == base["demos"], "results differ"
+    ray.shard_folder = str(shards)
+    start = time.perf_counter()
+    written = [p.result() for p in [ray.collect(t, 1000 + k) for t in TASKS for k in range(args.demos)]]
+    result["shard_seconds"] = time.perf_counter() - start
+    assert [(r.seed, r.env_steps) for r in written] == base["demos"], "results differ"
+    ray.shard_folder = None
     return ray, fixed, result
 
 
@@ -206,12 +214,13 @@ def main() -> None:
         rows = [("local", 1, base)]
         fixed = {}
         for workers in (1, 2):
-            ray, fixed[workers], result = on_ray(suite, ckpt, args, base, RayArgs(num_workers=workers))
+            ray_args = RayArgs(num_workers=workers)
+            ray, fixed[workers], result = on_ray(suite, ckpt, args, base, ray_args, tmp / f"shards-{workers}")
             rows.append(("ray", workers, result))
             if workers == 2:
                 driver = driver_costs(suite, ray, tmp, 4 * args.demos)
             ray.close()
-        rows.append(("ray, 2 nodes", 2, two_nodes(suite, ckpt, args, base)))
+        rows.append(("ray, 2 nodes", 2, two_nodes(suite, ckpt, args, base, tmp / "shards-nodes")))
 
     episodes = len(base["outcomes"])
     lines = [
@@ -220,19 +229,24 @@ def main() -> None:
         f"Command: `python benchmarks/loop_speed.py --episodes {args.episodes} --demos {args.demos}`; {machine_line()}.",
         f"Tasks {', '.join(TASKS)} (state observations, 200-step limit). Evaluation: {args.episodes} fixed-set episodes "
         "per task, batches of 10, a small ACT (`policies/act_state_cpu.yaml`, 20 training steps: most episodes run "
-        f"to the limit). Collection: {args.demos} scripted-expert episodes per task (recorded, not written). "
+        f"to the limit). Collection: {args.demos} scripted-expert episodes per task (recorded and sent back, not "
+        "written; in the last two columns each Ray worker writes what it collects as a shard and sends back its "
+        "description, as a round does by default). "
         "Raw = the bare MetaWorld `env.step` of the same episodes, timed inside the local run: "
         f"**{raw_rate:.0f} steps/s** on this machine. Ray results were checked equal to local ones (same outcomes and "
         "steps per episode, same demonstrations).",
         "",
-        "| executor | workers | eval steps/s | eval / raw | collection steps/s | collection / raw |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| executor | workers | eval steps/s | eval / raw | collection steps/s | collection / raw | "
+        "collection writing shards (a round's default) steps/s | / raw |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for name, workers, r in rows:
         ev, co = r["eval_steps"] / r["eval_seconds"], r["collect_steps"] / r["collect_seconds"]
+        sh = r["collect_steps"] / r["shard_seconds"] if "shard_seconds" in r else None
+        written = f"{sh:.0f} | {sh / (workers * raw_rate):.2f}" if sh else "(appends in-process) | -"
         lines.append(
             f"| {name} | {workers} | {ev:.0f} | {ev / (workers * raw_rate):.2f} | {co:.0f} | "
-            f"{co / (workers * raw_rate):.2f} |"
+            f"{co / (workers * raw_rate):.2f} | {written} |"
         )
     per_episode = (rows[1][2]["eval_seconds"] - base["eval_seconds"]) / episodes
     per_demo = (rows[1][2]["collect_seconds"] - base["collect_seconds"]) / (len(TASKS) * args.demos)
