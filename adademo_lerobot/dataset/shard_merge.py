@@ -97,9 +97,8 @@ class MergePlan:
     first: int  # the first shard's episode index
     first_frame: int  # its first frame's index
     task_indices: list[int]
-    at: dict[
-        str, tuple[int, int]
-    ]  # per file kind (`data`, `meta/episodes`, `videos/<key>`): the new (chunk, file)
+    # Per file kind (`data`, `meta/episodes`, `videos/<key>`): the new file's (chunk, file).
+    at: dict[str, tuple[int, int]]
     video_keys: list[str]
     schema: pa.Schema  # of the `meta/episodes` rows
     round_index: int
@@ -108,9 +107,8 @@ class MergePlan:
     tasks: pd.DataFrame  # the dataset's tasks after this merge
     new_tasks: bool
     total_frames: int  # the dataset's frames after this merge
-    staged: dict[
-        str, str
-    ]  # each file the merge creates (relative to the dataset) -> where `prepare` writes it
+    # Each file the merge creates (relative to the dataset) -> where `prepare` writes it.
+    staged: dict[str, str]
 
     @property
     def episodes(self) -> list[int]:

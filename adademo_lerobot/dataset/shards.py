@@ -51,9 +51,8 @@ class Shard:
     # shard itself (`load_shard`); they were most of the ~0.25 ms a result cost the driver to fetch.
     row: dict | None
     stats: dict | None
-    data_file: (
-        str  # its frames, relative to `path` (LeRobot's data file); "" when `path` is an Arrow file of them
-    )
+    # Its frames, relative to `path` (LeRobot's data file); "" when `path` is an Arrow file of them.
+    data_file: str
     by_policy: bool = False  # a kept policy rollout (--keep_successes), not an expert's demonstration
 
     def __getstate__(self) -> dict:
@@ -246,10 +245,11 @@ def _shard(path: Path, demo: Demonstration, row: dict, stats: dict, data_file: s
 
 def read_frames(shard: Shard) -> pa.Table:
     """A finished shard's frames, as LeRobot's data file holds them (schema metadata included)."""
-    path = Path(shard.path) / shard.data_file if shard.data_file else Path(shard.path)
+    path = Path(shard.path)
     if shard.data_file:
         # If it is not there, raises saying which: a folder this machine cannot see, or a shard that is not whole.
-        return pq.ParquetFile(path if path.is_file() else the_one(Path(shard.path), shard.data_file)).read()
+        data = path / shard.data_file
+        return pq.ParquetFile(data if data.is_file() else the_one(path, shard.data_file)).read()
     if not path.is_file():
         raise _unseen(path)
     with pa.OSFile(str(path)) as source:

@@ -115,9 +115,8 @@ class Executor(Protocol):
         start_state: list[float] | None = None,
         takeover: TakeoverArgs | None = None,
     ) -> Pending: ...
-    def prepare_merge(
-        self, plan: MergePlan
-    ) -> Pending: ...  # writes a merge's files (`dataset/shard_merge.py`)
+    # Writes a planned merge's files (`dataset/shard_merge.py`) where the executor's workers are.
+    def prepare_merge(self, plan: MergePlan) -> Pending: ...
     def close(self) -> None: ...
 
 

@@ -96,7 +96,9 @@ class OrderedAppender:
         """A commit of what is buffered."""
         with self._lock:
             batch, self._buffer = self._buffer, []
-            if batch and self.journal is not None and isinstance(batch[0], Shard):
+            if not batch:
+                return
+            if self.journal is not None and isinstance(batch[0], Shard):
                 if self._next_episode is None:
                     self._next_episode = int(read_info(self.dataset.root)["total_episodes"])
                 self.journal.append(shards_entry(self._next_episode, batch), sync=True)  # the commit
@@ -106,11 +108,11 @@ class OrderedAppender:
                     self._start_merge()
                 self._commit_merges(wait=False)
                 return
-            if batch and self.journal is not None:
+            if self.journal is not None:
                 self.journal.sync()  # the entries that count these demonstrations are durable before they are
-            if batch and isinstance(batch[0], Shard):
+            if isinstance(batch[0], Shard):
                 self._merge(batch)
-            elif batch:
+            else:
                 self.dataset.append(self.suite, batch, self.round_index, self.source, self.collector)
 
     def close(self) -> None:
