@@ -164,26 +164,16 @@ def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Sha
     LeRobot's writer computes them (its stats, schema and row layout; checked equal in tests/test_shards.py),
     without building a dataset per episode, which cost the worker ~4x more (benchmarks/results/shard_merge.md).
     The table is an Arrow file: the merge reads it in a fraction of a parquet file's open and decode."""
-    from lerobot.datasets.compute_stats import compute_episode_stats
     from lerobot.datasets.feature_utils import get_hf_features_from_features
     from lerobot.utils.constants import DEFAULT_FEATURES
 
+    from adademo_lerobot.dataset.stats import episode_stats
     from adademo_lerobot.dataset.store import provenance_columns
 
     features = {**features, **DEFAULT_FEATURES}  # LeRobot's order: ours, then its own
-    n, steps = len(demo.frames), np.arange(len(demo.frames))
-    # The episode buffer as LeRobot's writer holds it when it computes an episode's stats.
-    episode = {
-        key: np.stack([f[key] for f in demo.frames]) for key in features if key not in DEFAULT_FEATURES
-    }
-    episode |= {
-        "timestamp": steps / suite.fps,
-        "frame_index": steps,
-        "episode_index": np.zeros(n, np.int64),
-        "index": steps,
-        "task_index": np.zeros(n, np.int64),
-    }
-    stats = compute_episode_stats(episode, features)
+    n = len(demo.frames)
+    episode = episode_buffer(demo, features, suite.fps)
+    stats = episode_stats(episode, features)
     schema = _as_parquet_reads_it(get_hf_features_from_features(features).arrow_schema)
     table = pa.Table.from_arrays([_column(episode[f.name], f.type) for f in schema], schema=schema)
     row = {
@@ -208,6 +198,23 @@ def _write_frames(path: Path, suite, demo: Demonstration, features: dict) -> Sha
         writer.write_table(table)
     os.replace(partial, path)
     return shard
+
+
+def episode_buffer(demo: Demonstration, features: dict, fps: int) -> dict[str, np.ndarray]:
+    """The episode as LeRobot's writer holds it when it computes the episode's stats (its first episode)."""
+    from lerobot.utils.constants import DEFAULT_FEATURES
+
+    n, steps = len(demo.frames), np.arange(len(demo.frames))
+    episode = {
+        key: np.stack([f[key] for f in demo.frames]) for key in features if key not in DEFAULT_FEATURES
+    }
+    return episode | {
+        "timestamp": steps / fps,
+        "frame_index": steps,
+        "episode_index": np.zeros(n, np.int64),
+        "index": steps,
+        "task_index": np.zeros(n, np.int64),
+    }
 
 
 def _as_parquet_reads_it(schema: pa.Schema) -> pa.Schema:

@@ -519,6 +519,8 @@ class DemoDataset:
     def _write_episodes(dataset, demos, round_index, source, collector, producer) -> list[int]:
         import datasets
 
+        from adademo_lerobot.dataset.stats import lerobot_stats_by_value_bins
+
         # One "Map" bar per episode otherwise; disabled after opening, whose loader turns the bars back on.
         datasets.disable_progress_bars()
         indices = []
@@ -527,7 +529,7 @@ class DemoDataset:
         # A robot view's dataset (`--suite.view=robot`) has no environment_state: the expert read it, the
         # dataset keeps what the robot records.
         unrecorded = {ENV_STATE_KEY} - set(dataset.meta.features)
-        with _no_image_embedding_without_images():
+        with _no_image_embedding_without_images(), lerobot_stats_by_value_bins():
             for demo in demos:
                 for frame in demo.frames:
                     kept = {k: v for k, v in frame.items() if k not in unrecorded} if unrecorded else frame
