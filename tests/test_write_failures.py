@@ -103,6 +103,41 @@ def test_disk_full_in_the_middle_of_an_append_rolls_back_before_the_command_exit
     assert sorted(r["round"] for r in read_ledger(root)) == [1, 1]
 
 
+@pytest.mark.slow  # a local Ray (~10 s to start) and two runs of the round
+@pytest.mark.parametrize(
+    "free_kib, fails",
+    [
+        (60, "a Ray worker's collect failed"),  # the worker's first shard
+        (200, "writing 4 episodes to the dataset"),  # the shards fit; the merge's files (written by a worker)
+        (300, "writing 4 episodes to the dataset"),  # the merge's files fit; the driver's commit of them
+    ],
+)
+def test_disk_full_during_a_ray_round_rolls_back_and_the_rerun_finishes_exactly(
+    reach_push_dataset, small_disk, reference_round, free_kib: int, fails: str
+):
+    """The same round on a Ray worker, which writes what it collects as shards beside the dataset and the merge's
+    files: wherever the disk fills (sizes found on this machine's tmpfs, 2026-12-05), one `error:` line, the
+    dataset as it was, and the rerun gives the round as with room from the start."""
+    root = small_disk / "ds"
+    shutil.copytree(reach_push_dataset, root)
+    before = dataset_files(root)
+    filler = leave_free(small_disk, free_kib * 1024)
+    args = ["--dataset.repo_id=local/demo", f"--dataset.root={root}", *UNIFORM]
+    ray = ["--executor=ray", "--ray.num_workers=1"]
+    proc = run_cli("adademo-expand", *args, *ray, check=False)
+    assert proc.returncode == 1, proc.stderr[-3000:]
+    last = one_error_line(proc, fails, "No space left on device", "free space and run the same command")
+    assert "File " not in last and "\x1b" not in last, last  # no worker traceback, no terminal colours
+    assert dataset_files(root) == before
+    assert stock_episodes(root) == 6
+    assert not (root / TXN_FILE).exists()
+
+    filler.unlink()
+    run_cli("adademo-expand", *args, *ray)
+    assert round_episodes(root, 1) == reference_round
+    assert stock_episodes(root) == 10
+
+
 def test_disk_full_while_creating_a_dataset_leaves_nothing_half_made(small_disk):
     root = small_disk / "new"
     leave_free(small_disk, 48 * 1024)

@@ -14,13 +14,14 @@ Left to itself, Ray's driver would wait a minute for the GCS and then end with i
 from __future__ import annotations
 
 import math
+import re
 import socket
 import threading
 import time
 
 from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.collectors.takeover import TakeoverArgs
-from adademo_lerobot.core.errors import AdaDemoError, LostRayClusterError
+from adademo_lerobot.core.errors import AdaDemoError, LostRayClusterError, MachineError, machine_cause
 from adademo_lerobot.executors import RayArgs
 from adademo_lerobot.executors.worker import EpisodeWorker
 from adademo_lerobot.suites import TaskSuite
@@ -86,6 +87,16 @@ class ClusterWatch:
             cause = getattr(err, "cause", None)
             if isinstance(cause, AdaDemoError):
                 raise cause from None
+            if isinstance(cause, OSError):  # the worker's machine: a full disk, a folder it cannot write
+                what, first = machine_cause(cause)
+                # Which call, on which node: only the error's text says (`ray::EpisodeWorker.collect() (pid=.., ip=..)`).
+                call = re.search(r"ray::\w+\.(\w+)\(", str(err))
+                node = re.search(r"\bip=([\w.:-]+)", str(err))
+                raise MachineError(
+                    f"a Ray worker's {call.group(1) if call else 'task'} failed on "
+                    f"{node.group(1) if node else 'its node'} ({what}); the dataset is as its last commit left it: "
+                    f"{first}run the same command to resume"
+                ) from None
             raise
         except (rex.RayActorError, rex.LocalRayletDiedError, rex.NodeDiedError, rex.ObjectLostError) as err:
             if isinstance(err, rex.RayActorError) and err.actor_init_failed:
