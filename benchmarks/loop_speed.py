@@ -180,6 +180,10 @@ def on_ray(suite, ckpt: str, args, base: dict, ray_args, shards: Path) -> tuple:
     ray = make_executor(execution, suite, ScriptedCollectorConfig(), 10)
     ray.use_policy(ckpt)
     fixed = time.perf_counter() - start
+    # The same warm-up as the local executor's (each worker's first inference, its first envs and expert), so that
+    # both are timed in their steady state.
+    for _ in ray.actors:
+        run_units(ray, suite, ckpt, 2, 1, seed=99)
     result = run_units(ray, suite, ckpt, args.episodes, args.demos, seed=1)
     assert result["outcomes"] == base["outcomes"] and result["demos"] == base["demos"], "results differ"
     ray.shard_folder = str(shards)
