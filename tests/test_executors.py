@@ -152,6 +152,46 @@ def test_ray_gives_the_same_round_as_local(reach_push_dataset, ckpt, ray_address
         np.testing.assert_array_equal(sa, sb)
 
 
+PLACEMENT = """
+import json, sys
+from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig
+from adademo_lerobot.executors import RayArgs
+from adademo_lerobot.executors.ray_executor import RayExecutor
+from adademo_lerobot.suites import make_suite
+from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
+
+address, ckpt = sys.argv[1:]
+suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3", max_episode_steps=20))
+executor = RayExecutor(RayArgs(address=address, num_workers=2), suite, ScriptedCollectorConfig(), 2, "cpu")
+executor.use_policy(ckpt)
+placed = []
+for k, task in enumerate(["reach-v3", "push-v3"] * 3):
+    pending = executor.evaluate(task, [k])
+    placed.append([task, next(i for i, refs in enumerate(executor._inflight) if pending.ref in refs)])
+    pending.result()
+executor.close()
+print(json.dumps(placed))
+"""
+
+
+def test_a_tasks_units_go_to_the_worker_that_ran_it_last(ray_address, ckpt):
+    """Units submitted one at a time, as strategies evaluate the tasks in turn: each task keeps to one worker
+    (whose envs for it are still built), and a task no worker has run goes to the one idle longest (by load
+    alone, every unit went to worker 0, which built new envs for each)."""
+    out = subprocess.run(
+        [str(BIN / "python"), "-c", PLACEMENT, ray_address, str(ckpt)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"},
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    placed = json.loads(out.stdout.strip().splitlines()[-1])
+    workers = {task: {i for t, i in placed if t == task} for task in ("reach-v3", "push-v3")}
+    assert all(len(w) == 1 for w in workers.values()), placed
+    assert workers["reach-v3"] != workers["push-v3"], placed
+
+
 @pytest.mark.slow
 def test_ray_gives_the_same_fresh_state_rounds_as_local(reach_push_dataset, ckpt, ray_address, tmp_path):
     """Uniform (fresh states, no policy) then task_only, two rounds each way."""

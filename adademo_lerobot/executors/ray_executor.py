@@ -223,13 +223,22 @@ class RayExecutor:
             for _ in range(args.num_workers)
         ]
         self._inflight: list[list] = [[] for _ in self.actors]
+        # Per worker and kind of unit (method): the last unit's task, and when it was submitted (a count).
+        self._last_task: list[dict[str, tuple[str, int]]] = [{} for _ in self.actors]
+        self._submitted = 0
         self._lock = threading.Lock()
         self._policy: str | None = None
         # The workers write what they collect (--ray.worker_writes): where, set per round (None: frames come back).
         self.writes_shards = args.worker_writes
         self.shard_folder: str | None = None
 
-    def _least_loaded(self) -> int:
+    def _least_loaded(self, method: str, task: str | None) -> int:
+        """A worker with the fewest units in flight; among those, the one whose last unit of this kind (`method`) was
+        of `task`, else the one that has gone longest without such a unit. A worker keeps only its last task's
+        evaluation envs built (and a few tasks' expert envs), and strategies evaluate the tasks in turn, a few
+        episodes each: placed by load alone, every batch went to the first idle worker, which built new envs for
+        it (an MT10 round on 10 workers: 278 env builds for 304 evaluation episodes). The results are the same
+        wherever a unit runs."""
         import ray
 
         for refs in self._inflight:
@@ -237,15 +246,21 @@ class RayExecutor:
                 done, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
                 finished = set(done)
                 refs[:] = [r for r in refs if r not in finished]
-        return min(range(len(self.actors)), key=lambda i: len(self._inflight[i]))
+        least = min(len(refs) for refs in self._inflight)
+        idle = [i for i, refs in enumerate(self._inflight) if len(refs) == least]
+        last = [self._last_task[i].get(method, (None, -1)) for i in range(len(self.actors))]
+        return next((i for i in idle if last[i][0] == task), min(idle, key=lambda i: last[i][1]))
 
-    def _submit(self, method: str, *args) -> RayPending:
+    def _submit(self, method: str, task: str | None, *args) -> RayPending:
         if self._watch.lost is not None:  # no new work for a cluster that is gone
             raise self._watch.error()
         with self._lock:  # the tasks' loops submit from their own threads
-            i = self._least_loaded()
+            i = self._least_loaded(method, task)
             ref = getattr(self.actors[i], method).remote(*args)
             self._inflight[i].append(ref)
+            if task is not None:
+                self._last_task[i][method] = (task, self._submitted)
+                self._submitted += 1
         return RayPending(ref, self._watch)
 
     def use_policy(self, path: str | None) -> None:
@@ -257,7 +272,9 @@ class RayExecutor:
         self, task: str, seeds: list[int], takeover: TakeoverArgs | None = None, keep_successes: bool = False
     ) -> RayPending:
         shards = self.shard_folder if keep_successes else None  # a kept success's frames stay on the worker
-        return self._submit("evaluate", task, list(seeds), self._policy, takeover, keep_successes, shards)
+        return self._submit(
+            "evaluate", task, task, list(seeds), self._policy, takeover, keep_successes, shards
+        )
 
     def collect(
         self,
@@ -266,11 +283,11 @@ class RayExecutor:
         start_state: list[float] | None = None,
         takeover: TakeoverArgs | None = None,
     ) -> RayPending:
-        return self._submit("collect", task, seed, start_state, takeover, self.shard_folder)
+        return self._submit("collect", task, task, seed, start_state, takeover, self.shard_folder)
 
     def prepare_merge(self, plan) -> RayPending:
         """A worker writes a planned merge's files beside the shards (`dataset/shard_merge.py`)."""
-        return self._submit("prepare_merge", plan)
+        return self._submit("prepare_merge", None, plan)
 
     def worker_pids(self) -> list[int]:
         return self._watch.get([a.pid.remote() for a in self.actors])
