@@ -232,7 +232,7 @@ class RayExecutor:
         self.writes_shards = args.worker_writes
         self.shard_folder: str | None = None
 
-    def _least_loaded(self, method: str, task: str | None) -> int:
+    def _worker_for(self, method: str, task: str | None) -> int:
         """A worker with the fewest units in flight; among those, the one whose last unit of this kind (`method`) was
         of `task`, else the one that has gone longest without such a unit. A worker keeps only its last task's
         evaluation envs built (and a few tasks' expert envs), and strategies evaluate the tasks in turn, a few
@@ -255,7 +255,7 @@ class RayExecutor:
         if self._watch.lost is not None:  # no new work for a cluster that is gone
             raise self._watch.error()
         with self._lock:  # the tasks' loops submit from their own threads
-            i = self._least_loaded(method, task)
+            i = self._worker_for(method, task)
             ref = getattr(self.actors[i], method).remote(*args)
             self._inflight[i].append(ref)
             if task is not None:
