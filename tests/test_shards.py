@@ -26,7 +26,7 @@ from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.layout import TXN_FILE
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.dataset.shard_merge import ShardMerger, merge_into
-from adademo_lerobot.dataset.shards import read_frames, write_shard
+from adademo_lerobot.dataset.shards import load_with_frames, read_frames, write_shard
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
@@ -228,7 +228,8 @@ def test_a_state_shard_is_what_lerobots_writer_writes(tmp_path):
         # reads from the shard itself, exactly (dtypes included).
         sent = pickle.loads(pickle.dumps(ours))
         assert sent.row is None and sent.stats is None and sent.num_frames == ours.num_frames
-        described = sent.described
+        described, frames_read = load_with_frames(sent.path)
+        assert frames_read.equals(read_frames(ours))
         assert described.row.keys() == ours.row.keys()
         for (
             key,

@@ -27,7 +27,7 @@ from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import COMMIT_LOCK, atomic_write_json
 from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.layout import COL_COLLECTOR, COL_ROUND, COL_SOURCE, episode_provenance
-from adademo_lerobot.dataset.shards import Shard, load_shard, read_frames, shard_folder, the_one
+from adademo_lerobot.dataset.shards import Shard, load_with_frames, read_frames, shard_folder, the_one
 
 
 def _reindexed(stats: dict, column: str, by: int | None = None, value: int | None = None) -> None:
@@ -269,18 +269,19 @@ def _after(cursor: _Cursor, plan: MergePlan, stats: dict | None) -> _Cursor:
 
 def prepare(plan: MergePlan, shards: list[Shard] | None = None) -> dict:
     """Write a planned merge's files where the plan stages them (on a Ray worker, or in the driver); returns its
-    episodes' stats, aggregated. Reads each shard's frames once (its row and stats from `shards` when the caller
-    has them, else from the shard itself)."""
+    episodes' stats, aggregated. Reads each shard once (its row and stats from `shards` when the caller has them,
+    else from the shard's own file, with its frames)."""
     from lerobot.datasets.compute_stats import aggregate_stats
     from lerobot.datasets.io_utils import write_table_one_row_group_per_episode
     from lerobot.datasets.video_utils import concatenate_video_files, get_video_duration_in_s
 
-    shards = [s.described for s in shards] if shards is not None else [load_shard(p) for p in plan.paths]
+    described = {s.path: s for s in shards or [] if s.row is not None}
     offsets = dict.fromkeys(plan.video_keys, 0.0)
     videos: dict[str, list[Path]] = {key: [] for key in plan.video_keys}  # each camera's shard files
     tables, rows, all_stats, frames = [], [], [], plan.first_frame
-    for k, (shard, task_index) in enumerate(zip(shards, plan.task_indices, strict=True)):
-        data = read_frames(shard)
+    for k, (path, task_index) in enumerate(zip(plan.paths, plan.task_indices, strict=True)):
+        shard = described.get(path)
+        shard, data = (shard, read_frames(shard)) if shard is not None else load_with_frames(path)
         row, stats = dict(shard.row), {c: dict(v) for c, v in shard.stats.items()}
         n, episode = data.num_rows, plan.first + k
         _reindexed(stats, "episode_index", value=episode)
@@ -335,7 +336,7 @@ def prepare(plan: MergePlan, shards: list[Shard] | None = None) -> dict:
 
         for path in staged:
             path.unlink(missing_ok=True)
-        raise write_failure(err, Path(plan.root), f"{len(shards)} episodes") from err
+        raise write_failure(err, Path(plan.root), f"{len(plan.paths)} episodes") from err
     return aggregate_stats(all_stats)
 
 

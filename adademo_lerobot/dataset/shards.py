@@ -58,11 +58,6 @@ class Shard:
     def __getstate__(self) -> dict:
         return {**self.__dict__, "row": None, "stats": None}
 
-    @property
-    def described(self) -> Shard:
-        """This shard with its row and stats (read from the shard when they did not travel with it)."""
-        return self if self.row is not None else load_shard(self.path)
-
 
 def _description(shard: Shard) -> str:
     """The shard as `read_shard` rebuilds it: its stats packed in one array, rebuilt exactly (dtypes and shapes)."""
@@ -92,11 +87,16 @@ def read_shard(path: str | Path) -> Shard | None:
         else:
             with pa.OSFile(str(path)) as source:
                 description = pa.ipc.open_file(source).schema.metadata[SHARD_KEY]
-        state = json.loads(description)
+        shard = _described(path, description)
     except (OSError, ValueError, KeyError, TypeError, pa.ArrowInvalid):
         return None
-    if state["data_file"] and not (path / state["data_file"]).is_file():
+    if shard.data_file and not (path / shard.data_file).is_file():
         return None
+    return shard
+
+
+def _described(path: Path, description: str | bytes) -> Shard:
+    state = json.loads(description)
     layout, packed = state["stats"]
     return Shard(**(state | {"path": str(path), "stats": _unpacked(layout, np.asarray(packed, np.float64))}))
 
@@ -107,6 +107,21 @@ def load_shard(path: str | Path) -> Shard:
     if shard is None:
         raise _unseen(Path(path)) if not Path(path).exists() else AdaDemoError(f"shard {path} is not whole")
     return shard
+
+
+def load_with_frames(path: str | Path) -> tuple[Shard, pa.Table]:
+    """`load_shard(path)` and its `read_frames`, a state shard's one file read once (its description is in the
+    frames' schema metadata); the same errors."""
+    path = Path(path)
+    if path.is_dir():  # a camera shard: its description beside LeRobot's files
+        shard = load_shard(path)
+        return shard, read_frames(shard)
+    try:
+        table = _arrow_frames(path)
+        shard = _described(path, table.schema.metadata[SHARD_KEY])
+    except (ValueError, KeyError, TypeError, pa.ArrowInvalid):
+        raise AdaDemoError(f"shard {path} is not whole") from None
+    return shard, _without_description(table)
 
 
 def shard_folder(root: Path, round_index: int) -> Path:
@@ -257,10 +272,18 @@ def read_frames(shard: Shard) -> pa.Table:
         # If it is not there, raises saying which: a folder this machine cannot see, or a shard that is not whole.
         data = path / shard.data_file
         return pq.ParquetFile(data if data.is_file() else the_one(path, shard.data_file)).read()
+    return _without_description(_arrow_frames(path))
+
+
+def _arrow_frames(path: Path) -> pa.Table:
+    """A state shard's table, its description still in the schema metadata."""
     if not path.is_file():
         raise _unseen(path)
     with pa.OSFile(str(path)) as source:
-        table = pa.ipc.open_file(source).read_all()
+        return pa.ipc.open_file(source).read_all()
+
+
+def _without_description(table: pa.Table) -> pa.Table:
     return table.replace_schema_metadata({k: v for k, v in table.schema.metadata.items() if k != SHARD_KEY})
 
 
