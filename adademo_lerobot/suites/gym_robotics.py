@@ -21,6 +21,7 @@ from adademo_lerobot.suites.base import (
     check_task_names,
     split_task_list,
 )
+from adademo_lerobot.suites.parsed_models import models_parsed_once
 
 DEFAULT_CAMERA = "default"  # the env's own free camera (what `env.render()` shows)
 RENDER_SIZE = 256  # frames for videos of state-only envs
@@ -49,7 +50,7 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     """
     register_envs()
     kwargs = {"render_mode": "rgb_array", "width": image_size, "height": image_size} if render else {}
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), models_parsed_once():
         warnings.simplefilter("ignore")
         raw = gym.make(task, disable_env_checker=True, **kwargs).unwrapped
     if render:

@@ -27,6 +27,7 @@ from adademo_lerobot.suites.base import (
     check_task_names,
     split_task_list,
 )
+from adademo_lerobot.suites.parsed_models import models_parsed_once
 
 MT10 = [
     "reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3",
@@ -91,7 +92,7 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
         if render
         else {}
     )
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), models_parsed_once():
         warnings.simplefilter("ignore")
         env = ALL_V3_ENVIRONMENTS[task](**kwargs)
     env._partially_observable = False
