@@ -169,15 +169,24 @@ for k, task in enumerate(["reach-v3", "push-v3"] * 3):
     pending = executor.evaluate(task, [k])
     placed.append([task, next(i for i, refs in enumerate(executor._inflight) if pending.ref in refs)])
     pending.result()
+burst = []  # units submitted together, none read yet: spread by load
+for k in range(6):
+    pending = executor.collect("reach-v3", 100 + k)
+    burst.append((pending, next(i for i, refs in enumerate(executor._inflight) if pending.ref in refs)))
+for pending, _ in burst:
+    pending.result()
+executor._drop_finished()
+print(json.dumps({"placed": placed, "burst": [i for _, i in burst],
+                  "left": [len(refs) for refs in executor._inflight]}))
 executor.close()
-print(json.dumps(placed))
 """
 
 
 def test_a_tasks_units_go_to_the_worker_that_ran_it_last(ray_address, ckpt):
     """Units submitted one at a time, as strategies evaluate the tasks in turn: each task keeps to one worker
     (whose envs for it are still built), and a task no worker has run goes to the one idle longest (by load
-    alone, every unit went to worker 0, which built new envs for each)."""
+    alone, every unit went to worker 0, which built new envs for each). Units submitted together spread over
+    the workers, and finished ones stop counting."""
     out = subprocess.run(
         [str(BIN / "python"), "-c", PLACEMENT, ray_address, str(ckpt)],
         capture_output=True,
@@ -186,10 +195,13 @@ def test_a_tasks_units_go_to_the_worker_that_ran_it_last(ray_address, ckpt):
         env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"},
     )
     assert out.returncode == 0, out.stderr[-3000:]
-    placed = json.loads(out.stdout.strip().splitlines()[-1])
+    result = json.loads(next(line for line in out.stdout.splitlines() if line.startswith('{"placed"')))
+    placed = result["placed"]
     workers = {task: {i for t, i in placed if t == task} for task in ("reach-v3", "push-v3")}
     assert all(len(w) == 1 for w in workers.values()), placed
     assert workers["reach-v3"] != workers["push-v3"], placed
+    assert set(result["burst"]) == {0, 1}, result  # units in flight count as load: both workers get some
+    assert result["left"] == [0, 0], result  # finished units are no longer counted
 
 
 @pytest.mark.slow
