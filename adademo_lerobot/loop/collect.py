@@ -11,6 +11,7 @@ from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import exclusive_use
+from adademo_lerobot.core.progress import show
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.metadata import check_same_suite, has_dataset, load_suite_config
@@ -49,8 +50,7 @@ def collect_fresh(
             def progress(task: str, record: TaskRoundRecord) -> None:
                 done[task] = record.demos_added
                 bar.n = sum(done.values())
-                bar.set_postfix(task=task, expert_failures=record.expert_failures, refresh=False)
-                bar.refresh()
+                show(bar, task=task, expert_failures=record.expert_failures)
 
             ctx = RoundContext(
                 suite,

@@ -21,6 +21,7 @@ from adademo_lerobot.collectors.takeover import check_can_take_over
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import exclusive_use
+from adademo_lerobot.core.progress import show
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.features import dataset_features
@@ -193,9 +194,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     )  # fmt: skip
 
     def progress(task: str, record: TaskRoundRecord) -> None:
-        bar.set_postfix(
-            task=task, evals=record.eval_episodes, ok=record.successes, demos=record.demos_added, refresh=True
-        )
+        show(bar, task=task, evals=record.eval_episodes, ok=record.successes, demos=record.demos_added)
 
     ctx = RoundContext(
         suite,
