@@ -27,6 +27,8 @@ from pathlib import Path
 
 from _common import RESULTS, machine_line
 
+from adademo_lerobot.dataset.info import read_info
+
 RUN = """
 import atexit, json, os, resource, sys, threading, time
 
@@ -107,7 +109,7 @@ def main() -> None:
     parser.add_argument("--demos", type=int, nargs=2, default=[10, 60], help="few and many demos per task")
     args = parser.parse_args()
     few, many = args.demos
-    tasks = 10
+    tasks = int(read_info(args.base / "dataset")["total_tasks"])
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for workers in args.workers:

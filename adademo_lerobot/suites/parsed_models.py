@@ -28,7 +28,9 @@ _building = threading.Lock()  # the override below is process-wide: one env is b
 def _copy_of_parsed(filename: str, assets: dict | None = None) -> mujoco.MjModel:
     if assets is not None:  # models with in-memory assets are not ours to cache
         return _parse_xml(filename, assets)
-    model = _parsed.pop(filename, None) or _parse_xml(filename)
+    model = _parsed.pop(filename, None)
+    if model is None:
+        model = _parse_xml(filename)
     _parsed[filename] = model
     while len(_parsed) > KEPT_MODELS:
         _parsed.popitem(last=False)
