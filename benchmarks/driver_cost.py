@@ -107,24 +107,27 @@ def main() -> None:
     )
     parser.add_argument("--workers", type=int, nargs="+", default=[2, 16])
     parser.add_argument("--demos", type=int, nargs=2, default=[10, 60], help="few and many demos per task")
+    parser.add_argument("--repeats", type=int, default=1, help="measures per number of workers")
     args = parser.parse_args()
     few, many = args.demos
     tasks = int(read_info(args.base / "dataset")["total_tasks"])
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for workers in args.workers:
-            cpu = {few: one_round(args.base, Path(tmp), workers, few)}
-            cpu[many] = one_round(args.base, Path(tmp), workers, many)
-            added = (many - few) * tasks
-            per_demo = [(cpu[many][k] - cpu[few][k]) / added * 1e3 for k in (0, 1)]
-            rows.append((workers, cpu[few][0], cpu[many][0], *per_demo))
-            print(f"{workers} workers: driver CPU {cpu[few]} / {cpu[many]} s -> {per_demo} ms per demo")
+        for _ in range(args.repeats):
+            for workers in args.workers:
+                cpu = {few: one_round(args.base, Path(tmp), workers, few)}
+                cpu[many] = one_round(args.base, Path(tmp), workers, many)
+                added = (many - few) * tasks
+                per_demo = [(cpu[many][k] - cpu[few][k]) / added * 1e3 for k in (0, 1)]
+                rows.append((workers, cpu[few][0], cpu[many][0], *per_demo))
+                print(f"{workers} workers: driver CPU {cpu[few]} / {cpu[many]} s -> {per_demo} ms per demo")
+    rows.sort(key=lambda row: row[0])  # stable: each number of workers' measures in the order they ran
     lines = [
         "# The driver's CPU time per collected demonstration, on a whole Ray round",
         "",
-        f"Command: `python benchmarks/driver_cost.py --base OUT/seed4/base --workers {' '.join(map(str, args.workers))} --demos {few} {many}`; "
+        f"Command: `python benchmarks/driver_cost.py --base OUT/seed4/base --workers {' '.join(map(str, args.workers))} --demos {few} {many} --repeats {args.repeats}`; "
         f"{machine_line()}.",
-        f"`adademo-expand` with the Uniform strategy (collection only, workers write shards, commits journaled, merges "
+        f"`adademo-expand` with the Uniform strategy (collection only, a few units per Ray call, workers write shards, commits journaled, merges "
         f"of 100 written by the workers) on MetaWorld MT10 from the data-efficiency benchmark's seed-4 round 0, "
         f"{few} and then {many} demonstrations per task; N Ray workers sharing the machine's 2 cores "
         "(`--ray.num_cpus_per_worker=2/N`). Driver CPU: its own process (user + system, all threads), read at exit.",
@@ -133,6 +136,9 @@ def main() -> None:
         "driver CPU per added demonstration (ms) | of which in its Python threads (ms) |",
         "| --- | --- | --- | --- | --- |",
         *(f"| {w} | {a:.1f} | {b:.1f} | {d:.2f} | {p:.2f} |" for w, a, b, d, p in rows),
+        "",
+        f"Range over the {len(rows)} measures: {min(r[3] for r in rows):.2f}-{max(r[3] for r in rows):.2f} ms per "
+        f"demonstration in all, {min(r[4] for r in rows):.2f}-{max(r[4] for r in rows):.2f} ms in its Python threads.",
         "",
         "Everything the driver does per demonstration is in the last two columns: choosing the worker and submitting the "
         "unit, fetching its result, the journal's lines, the commits and merges, the strategy's books and the "

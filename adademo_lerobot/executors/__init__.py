@@ -115,6 +115,10 @@ class Executor(Protocol):
         start_state: list[float] | None = None,
         takeover: TakeoverArgs | None = None,
     ) -> Pending: ...
+    # `collect` for each (seed, start state) unit: the Ray executor sends a few units per call.
+    def collect_many(
+        self, task: str, units: list[tuple[int, list[float] | None]], takeover: TakeoverArgs | None = None
+    ) -> list[Pending]: ...
     # Writes a planned merge's files (`dataset/shard_merge.py`) where the executor's workers are.
     def prepare_merge(self, plan: MergePlan) -> Pending: ...
     def close(self) -> None: ...
@@ -160,6 +164,11 @@ class LocalExecutor:
         takeover: TakeoverArgs | None = None,
     ) -> Lazy:
         return Lazy(lambda: self.worker.collect(task, seed, start_state, takeover))
+
+    def collect_many(
+        self, task: str, units: list[tuple[int, list[float] | None]], takeover: TakeoverArgs | None = None
+    ) -> list[Lazy]:
+        return [self.collect(task, seed, start, takeover) for seed, start in units]
 
     def prepare_merge(self, plan: MergePlan) -> Lazy:
         return Lazy(lambda: self.worker.prepare_merge(plan))

@@ -32,6 +32,10 @@ from adademo_lerobot.suites import TaskSuite
 WAIT_SLICE_S = 1.0
 # A failed check is a lost cluster once checks have kept failing this long (not a blip of a busy machine).
 CONFIRM_S = 2.0
+# Most expert episodes one Ray call carries. Each call costs the driver ~1.4 ms of CPU (submitting it, fetching its
+# result: benchmarks/results/driver_cost.md), an episode ~0.1 s of a worker's: a few episodes per call divide
+# the driver's share, while the calls stay short enough to keep every worker busy until the round's end.
+MAX_UNITS_PER_CALL = 8
 
 
 class ClusterWatch:
@@ -93,8 +97,9 @@ class ClusterWatch:
                 # Which call, on which node: only the error's text says (`ray::EpisodeWorker.collect() (pid=.., ip=..)`).
                 call = re.search(r"ray::\w+\.(\w+)\(", str(err))
                 node = re.search(r"\bip=([\w.:-]+)", str(err))
+                what_call = call.group(1).removesuffix("_many") if call else "task"  # collect_many: a collect
                 raise MachineError(
-                    f"a Ray worker's {call.group(1) if call else 'task'} failed on "
+                    f"a Ray worker's {what_call} failed on "
                     f"{node.group(1) if node else 'its node'} ({what}); the dataset is as its last commit left it: "
                     f"{first}run the same command to resume"
                 ) from None
@@ -174,16 +179,36 @@ class ClusterWatch:
 
 
 class RayPending:
+    """A call's result, fetched from Ray once: every unit a call carried reads it from here."""
+
     def __init__(self, ref, watch: ClusterWatch):
         self.ref, self._watch = ref, watch
+        self._lock = threading.Lock()
+        self._value, self._fetched = None, False
 
     def result(self):
-        return self._watch.get(self.ref)
+        with self._lock:
+            if not self._fetched:
+                self._value, self._fetched = self._watch.get(self.ref), True
+        return self._value
 
     def ready(self) -> bool:
         import ray
 
-        return bool(ray.wait([self.ref], timeout=0)[0])
+        return self._fetched or bool(ray.wait([self.ref], timeout=0)[0])
+
+
+class RayUnit:
+    """One unit of a call that carried several (`RayExecutor.collect_many`)."""
+
+    def __init__(self, call: RayPending, index: int):
+        self.call, self.index = call, index
+
+    def result(self):
+        return self.call.result()[self.index]
+
+    def ready(self) -> bool:
+        return self.call.ready()
 
 
 class RayExecutor:
@@ -223,8 +248,10 @@ class RayExecutor:
             actor.remote(suite.config.to_dict(), collector_config, batch_size, device, threads)
             for _ in range(args.num_workers)
         ]
-        # Per worker, its units not known to be finished, oldest first.
-        self._inflight: list[deque] = [deque() for _ in self.actors]
+        # Per worker, its calls not known to be finished, oldest first, with how many units each carries; and
+        # the sum of those units (its load).
+        self._inflight: list[deque[tuple[object, int]]] = [deque() for _ in self.actors]
+        self._load = [0] * len(self.actors)
         # Per worker and kind of unit (method): the last unit's task, and when it was submitted (a count).
         self._last_task: list[dict[str, tuple[str, int]]] = [{} for _ in self.actors]
         self._submitted = 0
@@ -242,38 +269,39 @@ class RayExecutor:
         it (an MT10 round on 10 workers: 278 env builds for 304 evaluation episodes). The results are the same
         wherever a unit runs."""
         self._drop_finished()
-        least = min(len(refs) for refs in self._inflight)
-        idle = [i for i, refs in enumerate(self._inflight) if len(refs) == least]
+        least = min(self._load)
+        idle = [i for i, load in enumerate(self._load) if load == least]
         last = [self._last_task[i].get(method, (None, -1)) for i in range(len(self.actors))]
         return next((i for i in idle if last[i][0] == task), min(idle, key=lambda i: last[i][1]))
 
     def _drop_finished(self) -> None:
-        """Forget the units that have finished. A worker runs its units in the order they were submitted, so its
-        finished units are its oldest: one `ray.wait` over every worker's oldest unit, again while some had
-        finished, instead of one per worker over all of its units (each call costs the driver ~0.1 ms: with 64
-        workers that was ~6 ms per unit submitted). Were a worker's units to finish out of order, it would only
+        """Forget the calls that have finished. A worker runs its calls in the order they were submitted, so its
+        finished calls are its oldest: one `ray.wait` over every worker's oldest call, again while some had
+        finished, instead of one per worker over all of its calls (each costs the driver ~0.1 ms: with 64
+        workers that was ~6 ms per call submitted). Were a worker's calls to finish out of order, it would only
         look busier than it is until its oldest one finishes."""
         import ray
 
         while True:
-            oldest = [refs[0] for refs in self._inflight if refs]
+            oldest = [calls[0][0] for calls in self._inflight if calls]
             if not oldest:
                 return
             done, _ = ray.wait(oldest, num_returns=len(oldest), timeout=0, fetch_local=False)
             if not done:
                 return
             finished = set(done)
-            for refs in self._inflight:
-                if refs and refs[0] in finished:
-                    refs.popleft()
+            for i, calls in enumerate(self._inflight):
+                if calls and calls[0][0] in finished:
+                    self._load[i] -= calls.popleft()[1]
 
-    def _submit(self, method: str, task: str | None, *args) -> RayPending:
+    def _submit(self, method: str, task: str | None, *args, units: int = 1) -> RayPending:
         if self._watch.lost is not None:  # no new work for a cluster that is gone
             raise self._watch.error()
         with self._lock:  # the tasks' loops submit from their own threads
             i = self._worker_for(method, task)
             ref = getattr(self.actors[i], method).remote(*args)
-            self._inflight[i].append(ref)
+            self._inflight[i].append((ref, units))
+            self._load[i] += units
             if task is not None:
                 self._last_task[i][method] = (task, self._submitted)
                 self._submitted += 1
@@ -298,8 +326,24 @@ class RayExecutor:
         seed: int,
         start_state: list[float] | None = None,
         takeover: TakeoverArgs | None = None,
-    ) -> RayPending:
-        return self._submit("collect", task, task, seed, start_state, takeover, self.shard_folder)
+    ) -> RayUnit:
+        return self.collect_many(task, [(seed, start_state)], takeover)[0]
+
+    def collect_many(
+        self, task: str, units: list[tuple[int, list[float] | None]], takeover: TakeoverArgs | None = None
+    ) -> list[RayUnit]:
+        """Demonstrations from these (seed, start state) units, a few units per Ray call: never more calls'
+        worth of units than the workers can share (`MAX_UNITS_PER_CALL` at most per call), so the units still
+        spread over every worker. A unit's result is the same whichever call carries it."""
+        per_call = max(1, min(MAX_UNITS_PER_CALL, math.ceil(len(units) / len(self.actors))))
+        pending = []
+        for begin in range(0, len(units), per_call):
+            carried = units[begin : begin + per_call]
+            call = self._submit(
+                "collect_many", task, task, carried, takeover, self.shard_folder, units=len(carried)
+            )
+            pending += [RayUnit(call, k) for k in range(len(carried))]
+        return pending
 
     def prepare_merge(self, plan) -> RayPending:
         """A worker writes a planned merge's files beside the shards (`dataset/shard_merge.py`)."""

@@ -127,6 +127,17 @@ class EpisodeWorker:
             result.demonstration = self._as_result(result.demonstration, shard_folder)
         return result
 
+    def collect_many(
+        self,
+        task: str,
+        units: list[tuple[int, list[float] | None]],
+        takeover: TakeoverArgs | None = None,
+        shard_folder: str | None = None,
+    ) -> list[CollectionResult]:
+        """`collect` for each (seed, start state) unit, in order: several units in one call (a Ray call costs
+        the driver more than a unit's result does)."""
+        return [self.collect(task, seed, start, takeover, shard_folder) for seed, start in units]
+
     def prepare_merge(self, plan) -> dict:
         """Write a planned merge's files (`dataset/shard_merge.py`); returns its episodes' aggregated stats."""
         from adademo_lerobot.dataset.shard_merge import prepare

@@ -207,12 +207,13 @@ class RoundContext(JournaledRound):
         """Start the expert on these states now (all at once with a Ray executor; the local executor still runs
         each when `collect_demo` needs it), skipping states this round already has an answer for."""
         done = self.answered(task)
-        for seed in seeds:
-            if seed not in done and (task, seed) not in self._pending:
-                self._pending[(task, seed)] = self._collect(task, seed)
+        ask = list(dict.fromkeys(s for s in seeds if s not in done and (task, s) not in self._pending))
+        for seed, pending in zip(ask, self._collect(task, ask), strict=True):
+            self._pending[(task, seed)] = pending
 
-    def _collect(self, task: str, seed: int) -> Pending:
-        return self.executor.collect(task, seed, self._takeover_states.get((task, seed)), self.takeover)
+    def _collect(self, task: str, seeds: list[int]) -> list[Pending]:
+        units = [(seed, self._takeover_states.get((task, seed))) for seed in seeds]
+        return self.executor.collect_many(task, units, self.takeover)
 
     def collect_demo(self, task: str, seed: int, record: TaskRoundRecord) -> bool:
         """Ask the expert for a demonstration from exactly this seed's initial state (at most once a round)."""
@@ -220,7 +221,7 @@ class RoundContext(JournaledRound):
         reused = self.reuse_answer(task, seed, record)
         if reused is not None:
             return reused
-        pending = self._pending.pop((task, seed), None) or self._collect(task, seed)
+        pending = self._pending.pop((task, seed), None) or self._collect(task, [seed])[0]
         result = pending.result()
         demo = result.demonstration
         if demo is not None:
