@@ -53,6 +53,58 @@ def run_units(executor, suite, ckpt: str, episodes: int, demos: int, seed: int) 
     }
 
 
+class CallClock:
+    """Times the calls of the callables it wraps (measurement only): the expert's action function, the policy's
+    preprocessing, inference and postprocessing."""
+
+    def __init__(self):
+        self.seconds = 0.0
+
+    def wrap(self, fn):
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - start
+
+        return timed
+
+    def reset(self) -> None:
+        self.seconds = 0.0
+
+
+def where_time_goes(suite, ckpt: str, clock: StepClock, episodes: int, demos: int) -> dict:
+    """A local run of its own: the seconds of the whole loop, of the simulator's step, and of the work any loop must
+    do beside it (the expert's action function; the policy's preprocessing, chunk inference and postprocessing)."""
+    from adademo_lerobot.collectors import ScriptedCollectorConfig
+    from adademo_lerobot.collectors.metaworld_scripted import MetaWorldScriptedExpert
+    from adademo_lerobot.core.patching import temporarily_set
+    from adademo_lerobot.executors import LocalExecutor
+    from adademo_lerobot.loop.evaluate import evaluate_fixed_set
+
+    expert, policy = CallClock(), CallClock()
+    stock = MetaWorldScriptedExpert.expert_for
+    timed_expert = lambda self, task: expert.wrap(stock(self, task))  # noqa: E731
+    local = LocalExecutor(suite, ScriptedCollectorConfig(), batch_size=10, device="cpu", torch_threads=1)
+    with temporarily_set(MetaWorldScriptedExpert, "expert_for", timed_expert):
+        run_units(local, suite, ckpt, 2, 1, seed=99)  # warm-up
+        loaded = local.worker._evaluator.loaded
+        loaded.preprocessor = policy.wrap(loaded.preprocessor)
+        loaded.postprocessor = policy.wrap(loaded.postprocessor)
+        loaded.policy.predict_action_chunk = policy.wrap(loaded.policy.predict_action_chunk)
+        clock.reset()
+        start = time.perf_counter()
+        evaluate_fixed_set(suite, local, 2, episodes)
+        split = {"eval": (time.perf_counter() - start, clock.seconds, policy.seconds)}
+        clock.reset()
+        start = time.perf_counter()
+        [p.result() for task in TASKS for p in local.collect_many(task, draws(2000, demos))]
+        split["collect"] = (time.perf_counter() - start, clock.seconds, expert.seconds)
+    local.close()
+    return split
+
+
 def draws(first: int, n: int) -> list[tuple[int, None]]:
     return [(first + k, None) for k in range(n)]
 
@@ -169,19 +221,74 @@ def two_nodes(suite, ckpt: str, args, base: dict, shards: Path) -> dict:
         ray_args = RayArgs(address=cluster.address, num_workers=2)
         ray, _, result = on_ray(suite, ckpt, args, base, ray_args, shards)
         ray.close()
+        import ray as ray_module
+
+        ray_module.shutdown()
     finally:
         cluster.shutdown()
     return result
+
+
+def step_clock_hook(folder: str):
+    """A Ray worker-process setup hook (measurement only): the worker's bare MetaWorld step timed as `StepClock` times
+    it locally, its totals (steps, seconds) written to `folder`/<pid>.json every 100 steps. Self-contained: Ray
+    ships it to the workers by value."""
+
+    def install():
+        import json
+        import os
+        import time
+
+        from adademo_lerobot.suites.metaworld import MetaWorldTaskEnv
+
+        stock, totals, path = (
+            MetaWorldTaskEnv._raw_step,
+            [0, 0.0],
+            os.path.join(folder, f"{os.getpid()}.json"),
+        )
+
+        def timed(env, action):
+            start = time.perf_counter()
+            out = stock(env, action)
+            totals[1] += time.perf_counter() - start
+            totals[0] += 1
+            if totals[0] % 100 == 0:
+                with open(path, "w") as f:
+                    json.dump(totals, f)
+            return out
+
+        MetaWorldTaskEnv._raw_step = timed
+
+    return install
+
+
+def workers_raw_rate(folder: Path) -> float:
+    """The workers' raw rates (steps/s of their bare step), summed: the ideal for that many workers."""
+    import json
+
+    return sum(
+        steps / seconds for steps, seconds in (json.loads(f.read_text()) for f in folder.glob("*.json"))
+    )
 
 
 def on_ray(suite, ckpt: str, args, base: dict, ray_args, shards: Path) -> tuple:
     """A Ray executor with the policy loaded (left open), its fixed cost in seconds (start Ray or connect, create
     the actors, load the policy), and the units' results, checked equal to the local ones; then the same
     collection as a round runs it by default, each worker writing what it collects as a shard under `shards`."""
+    import ray as ray_module
+
     from adademo_lerobot.collectors import ScriptedCollectorConfig
     from adademo_lerobot.executors import ExecutionArgs, make_executor
 
+    clocks = shards.with_name(shards.name + "-clocks")
+    clocks.mkdir()
     start = time.perf_counter()
+    ray_module.init(
+        address=ray_args.address,
+        include_dashboard=False,
+        logging_level="WARNING",
+        runtime_env={"worker_process_setup_hook": step_clock_hook(str(clocks))},
+    )
     execution = ExecutionArgs(torch_threads=1, executor="ray", ray=ray_args)
     ray = make_executor(execution, suite, ScriptedCollectorConfig(), 10)
     ray.use_policy(ckpt)
@@ -198,6 +305,7 @@ def on_ray(suite, ckpt: str, args, base: dict, ray_args, shards: Path) -> tuple:
     result["shard_seconds"] = time.perf_counter() - start
     assert [(r.seed, r.env_steps) for r in written] == base["demos"], "results differ"
     ray.shard_folder = None
+    result["raw_rate"] = workers_raw_rate(clocks)
     return ray, fixed, result
 
 
@@ -215,11 +323,12 @@ def main() -> None:
         from adademo_lerobot.suites.metaworld import MetaWorldTaskEnv
 
         clock = StepClock(MetaWorldTaskEnv)  # the bare MetaWorld step
+        split = where_time_goes(suite, ckpt, clock, args.episodes, args.demos)
         local = LocalExecutor(suite, ScriptedCollectorConfig(), batch_size=10, device="cpu", torch_threads=1)
         run_units(local, suite, ckpt, 2, 1, seed=99)  # warm-up: first inference and env construction
         clock.reset()
         base = run_units(local, suite, ckpt, args.episodes, args.demos, seed=1)
-        raw_rate = clock.steps / clock.seconds
+        raw_rate = base["raw_rate"] = clock.steps / clock.seconds
         local.close()
         rows = [("local", 1, base)]
         fixed = {}
@@ -230,6 +339,9 @@ def main() -> None:
             if workers == 2:
                 driver = driver_costs(suite, ray, tmp, 4 * args.demos)
             ray.close()
+            import ray as ray_module
+
+            ray_module.shutdown()
         rows.append(("ray, 2 nodes", 2, two_nodes(suite, ckpt, args, base, tmp / "shards-nodes")))
 
     episodes = len(base["outcomes"])
@@ -242,21 +354,26 @@ def main() -> None:
         f"to the limit). Collection: {args.demos} scripted-expert episodes per task (recorded and sent back, not "
         "written; in the last two columns each Ray worker writes what it collects as a shard and sends back its "
         "description, as a round does by default). "
-        "Raw = the bare MetaWorld `env.step` of the same episodes, timed inside the local run: "
-        f"**{raw_rate:.0f} steps/s** on this machine. Ray results were checked equal to local ones (same outcomes and "
-        "steps per episode, same demonstrations).",
+        "Raw = the bare MetaWorld `env.step` of the same episodes, timed inside each process that steps: the local "
+        f"run's (**{raw_rate:.0f} steps/s** on this machine), each Ray worker's (a worker setup hook; the workers' "
+        "rates summed: the ideal for that many workers). Ray results were checked equal to local ones (same outcomes "
+        "and steps per episode, same demonstrations).",
         "",
-        "| executor | workers | eval steps/s | eval / raw | collection steps/s | collection / raw | "
+        "| executor | workers | raw steps/s | eval steps/s | eval / raw | collection steps/s | collection / raw | "
         "collection writing shards (a round's default) steps/s | / raw |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
+    ev_local, co_local = (
+        base["eval_steps"] / base["eval_seconds"],
+        base["collect_steps"] / base["collect_seconds"],
+    )
     for name, workers, r in rows:
         ev, co = r["eval_steps"] / r["eval_seconds"], r["collect_steps"] / r["collect_seconds"]
         sh = r["collect_steps"] / r["shard_seconds"] if "shard_seconds" in r else None
-        written = f"{sh:.0f} | {sh / (workers * raw_rate):.2f}" if sh else "(appends in-process) | -"
+        raw = r["raw_rate"]
+        written = f"{sh:.0f} | {sh / raw:.2f}" if sh else "(appends in-process) | -"
         lines.append(
-            f"| {name} | {workers} | {ev:.0f} | {ev / (workers * raw_rate):.2f} | {co:.0f} | "
-            f"{co / (workers * raw_rate):.2f} | {written} |"
+            f"| {name} | {workers} | {raw:.0f} | {ev:.0f} | {ev / raw:.2f} | {co:.0f} | {co / raw:.2f} | {written} |"
         )
     per_episode = (rows[1][2]["eval_seconds"] - base["eval_seconds"]) / episodes
     per_demo = (rows[1][2]["collect_seconds"] - base["collect_seconds"]) / (len(TASKS) * args.demos)
@@ -265,10 +382,32 @@ def main() -> None:
     per_demo_round_s = driver["journal_s"] + driver["fetch_shard_s"] + driver["round_s"]
     one_worker = rows[1][2]["collect_steps"] / rows[1][2]["collect_seconds"]
     demos_per_s = one_worker / (rows[1][2]["collect_steps"] / (len(TASKS) * args.demos))
+    shares = {
+        kind: (sim / wall, work / wall, 1 - (sim + work) / wall) for kind, (wall, sim, work) in split.items()
+    }
+    # The least any loop runs per step: the simulator plus that work (the rate if nothing else took time).
+    floor = {kind: sim / (sim + work) for kind, (_, sim, work) in split.items()}  # of the raw rate
+    ray1 = rows[1][2]
+    ray1_eval, ray1_collect = (
+        ray1["eval_steps"] / ray1["eval_seconds"],
+        ray1["collect_steps"] / ray1["collect_seconds"],
+    )
+    ray1_shards = ray1["collect_steps"] / ray1["shard_seconds"]
     lines += [
         "",
-        "Ray's ratios are against workers x the raw rate (the ideal for that many cores); with 2 workers on 2 cores "
-        "the driver process shares the cores with them.",
+        "With 2 workers on 2 cores the driver process shares the cores with them (their raw rates drop with it).",
+        "",
+        "Where the local loop's time goes (a run of its own, the same numbers of episodes from other seeds): "
+        f"evaluation: the simulator {100 * shares['eval'][0]:.1f} %, the policy (preprocessing, chunk inference, "
+        f"postprocessing) {100 * shares['eval'][1]:.1f} %, the rest {100 * shares['eval'][2]:.1f} % (restores, our env "
+        f"and its batching, bookkeeping); collection: the simulator {100 * shares['collect'][0]:.1f} %, the expert's "
+        f"action function {100 * shares['collect'][1]:.1f} %, the rest {100 * shares['collect'][2]:.1f} % (restores, "
+        "recording, our env). Against the simulator plus that work, the least any loop runs (its rate: evaluation "
+        f"{floor['eval']:.2f}x, collection {floor['collect']:.2f}x the raw rate): local evaluation "
+        f"{ev_local / raw_rate / floor['eval']:.2f}x and collection {co_local / raw_rate / floor['collect']:.2f}x; "
+        f"one Ray worker {ray1_eval / ray1['raw_rate'] / floor['eval']:.2f}x and "
+        f"{ray1_collect / ray1['raw_rate'] / floor['collect']:.2f}x ({ray1_shards / ray1['raw_rate'] / floor['collect']:.2f}x "
+        "writing shards), taking the work's share of a step to be the local one's.",
         "",
         f"- Ray fixed cost per command (start a local Ray, create the actors, load the policy in each): "
         f"{fixed[1]:.1f} s with 1 worker, {fixed[2]:.1f} s with 2.",
