@@ -152,6 +152,17 @@ def test_ray_gives_the_same_round_as_local(reach_push_dataset, ckpt, ray_address
         np.testing.assert_array_equal(sa, sb)
 
 
+def test_units_asked_together_spread_over_every_worker_a_few_per_call():
+    from adademo_lerobot.executors.ray_executor import MAX_UNITS_PER_CALL, units_per_call
+
+    assert units_per_call(6, 2) == 3  # one call per worker
+    assert units_per_call(7, 2) == 4  # 4 + 3
+    assert units_per_call(3, 64) == 1  # fewer units than workers: one each
+    assert units_per_call(1, 1) == 1
+    assert units_per_call(0, 2) == 1  # nothing asked: no call is made, whatever the size
+    assert units_per_call(1000, 2) == units_per_call(17, 2) == MAX_UNITS_PER_CALL == 8  # calls stay short
+
+
 PLACEMENT = """
 import json, sys
 from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig

@@ -38,6 +38,12 @@ CONFIRM_S = 2.0
 MAX_UNITS_PER_CALL = 8
 
 
+def units_per_call(units: int, workers: int) -> int:
+    """How many of `units` asked for together one Ray call carries: few enough that the calls still spread over
+    every worker, and at most `MAX_UNITS_PER_CALL`."""
+    return max(1, min(MAX_UNITS_PER_CALL, math.ceil(units / workers)))
+
+
 class ClusterWatch:
     """Reads results (`get`) while it checks, about once a second, that the cluster can still deliver them."""
 
@@ -94,7 +100,8 @@ class ClusterWatch:
                 raise cause from None
             if isinstance(cause, OSError):  # the worker's machine: a full disk, a folder it cannot write
                 what, first = machine_cause(cause)
-                # Which call, on which node: only the error's text says (`ray::EpisodeWorker.collect() (pid=.., ip=..)`).
+                # Which call, on which node: only the error's text says (`ray::EpisodeWorker.collect_many() (pid=..,
+                # ip=..)`; the error Ray raises here keeps neither as attributes).
                 call = re.search(r"ray::\w+\.(\w+)\(", str(err))
                 node = re.search(r"\bip=([\w.:-]+)", str(err))
                 what_call = call.group(1).removesuffix("_many") if call else "task"  # collect_many: a collect
@@ -332,10 +339,9 @@ class RayExecutor:
     def collect_many(
         self, task: str, units: list[tuple[int, list[float] | None]], takeover: TakeoverArgs | None = None
     ) -> list[RayUnit]:
-        """Demonstrations from these (seed, start state) units, a few units per Ray call: never more calls'
-        worth of units than the workers can share (`MAX_UNITS_PER_CALL` at most per call), so the units still
-        spread over every worker. A unit's result is the same whichever call carries it."""
-        per_call = max(1, min(MAX_UNITS_PER_CALL, math.ceil(len(units) / len(self.actors))))
+        """Demonstrations from these (seed, start state) units, a few units per Ray call (`units_per_call`). A
+        unit's result is the same whichever call carries it."""
+        per_call = units_per_call(len(units), len(self.actors))
         pending = []
         for begin in range(0, len(units), per_call):
             carried = units[begin : begin + per_call]
