@@ -152,15 +152,19 @@ def test_ray_gives_the_same_round_as_local(reach_push_dataset, ckpt, ray_address
         np.testing.assert_array_equal(sa, sb)
 
 
-def test_units_asked_together_spread_over_every_worker_a_few_per_call():
-    from adademo_lerobot.executors.ray_executor import MAX_UNITS_PER_CALL, units_per_call
+def test_units_asked_together_go_out_a_few_per_call_the_same_share_for_every_worker():
+    from adademo_lerobot.executors.ray_executor import MAX_UNITS_PER_CALL, call_sizes
 
-    assert units_per_call(6, 2) == 3  # one call per worker
-    assert units_per_call(7, 2) == 4  # 4 + 3
-    assert units_per_call(3, 64) == 1  # fewer units than workers: one each
-    assert units_per_call(1, 1) == 1
-    assert units_per_call(0, 2) == 1  # nothing asked: no call is made, whatever the size
-    assert units_per_call(1000, 2) == units_per_call(17, 2) == MAX_UNITS_PER_CALL == 8  # calls stay short
+    assert call_sizes(6, 2) == [3, 3]  # one call per worker
+    assert call_sizes(7, 2) == [4, 3]
+    assert call_sizes(3, 64) == [1, 1, 1]  # fewer units than workers: one each
+    assert call_sizes(0, 2) == []
+    assert call_sizes(17, 2) == [5, 4, 4, 4]  # not 8 + 8 + 1: each worker gets 9 or 8 units
+    assert call_sizes(100, 4) == [7] * 4 + [6] * 12  # 16 calls, 4 per worker: 25 units each
+    for units, workers in [(1000, 2), (160, 6), (5, 1), (9, 1), (65, 8)]:
+        sizes = call_sizes(units, workers)
+        assert sum(sizes) == units and max(sizes) <= MAX_UNITS_PER_CALL and max(sizes) - min(sizes) <= 1
+        assert len(sizes) % workers == 0 or len(sizes) == units
 
 
 PLACEMENT = """

@@ -38,10 +38,16 @@ CONFIRM_S = 2.0
 MAX_UNITS_PER_CALL = 8
 
 
-def units_per_call(units: int, workers: int) -> int:
-    """How many of `units` asked for together one Ray call carries: few enough that the calls still spread over
-    every worker, and at most `MAX_UNITS_PER_CALL`."""
-    return max(1, min(MAX_UNITS_PER_CALL, math.ceil(units / workers)))
+def call_sizes(units: int, workers: int) -> list[int]:
+    """How many units each Ray call carries, for `units` asked for together: as few calls as keep each at most
+    `MAX_UNITS_PER_CALL`, as many for every worker (one unit per call when there are fewer units than workers),
+    their sizes as even as can be, so that no worker is left with a longer share (episodes of a task take about
+    as long as each other: with seconds-long experts an uneven last call would keep the others waiting)."""
+    if units <= 0:
+        return []
+    calls = min(units, workers * math.ceil(units / (workers * MAX_UNITS_PER_CALL)))
+    size, longer = divmod(units, calls)
+    return [size + 1] * longer + [size] * (calls - longer)
 
 
 class ClusterWatch:
@@ -339,16 +345,13 @@ class RayExecutor:
     def collect_many(
         self, task: str, units: list[tuple[int, list[float] | None]], takeover: TakeoverArgs | None = None
     ) -> list[RayUnit]:
-        """Demonstrations from these (seed, start state) units, a few units per Ray call (`units_per_call`). A
-        unit's result is the same whichever call carries it."""
-        per_call = units_per_call(len(units), len(self.actors))
-        pending = []
-        for begin in range(0, len(units), per_call):
-            carried = units[begin : begin + per_call]
-            call = self._submit(
-                "collect_many", task, task, carried, takeover, self.shard_folder, units=len(carried)
-            )
-            pending += [RayUnit(call, k) for k in range(len(carried))]
+        """Demonstrations from these (seed, start state) units, a few units per Ray call (`call_sizes`), in order.
+        A unit's result is the same whichever call carries it."""
+        pending, begin = [], 0
+        for size in call_sizes(len(units), len(self.actors)):
+            carried, begin = units[begin : begin + size], begin + size
+            call = self._submit("collect_many", task, task, carried, takeover, self.shard_folder, units=size)
+            pending += [RayUnit(call, k) for k in range(size)]
         return pending
 
     def prepare_merge(self, plan) -> RayPending:
