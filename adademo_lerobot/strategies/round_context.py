@@ -204,8 +204,9 @@ class RoundContext(JournaledRound):
 
     # -- collection -------------------------------------------------------------------------------------
     def ask_expert(self, task: str, seeds: list[int]) -> None:
-        """Start the expert on these states now (all at once with a Ray executor; the local executor still runs
-        each when `collect_demo` needs it), skipping states this round already has an answer for."""
+        """Start the expert on these states now (all at once with a Ray executor, a few per Ray call; the local
+        executor still runs each when `collect_demo` needs it), skipping states this round already has an answer
+        for."""
         done = self.answered(task)
         ask = list(dict.fromkeys(s for s in seeds if s not in done and (task, s) not in self._pending))
         for seed, pending in zip(ask, self._collect(task, ask), strict=True):
