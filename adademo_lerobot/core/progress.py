@@ -1,4 +1,4 @@
-"""Progress bars that follow a round's demonstrations without costing the round."""
+"""Progress bars that follow a loop (a round's demonstrations, training steps) without costing it."""
 
 from __future__ import annotations
 

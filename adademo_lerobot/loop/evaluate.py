@@ -17,6 +17,7 @@ from tqdm import tqdm
 from adademo_lerobot.collectors import ScriptedCollectorConfig
 from adademo_lerobot.core.episodes import EpisodeRecord
 from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.progress import show
 from adademo_lerobot.core.seeds import evaluation_seeds
 from adademo_lerobot.evaluation.rollouts import format_success_table, success_table, write_eval_outputs
 from adademo_lerobot.executors import Executor, make_executor
@@ -45,7 +46,7 @@ def evaluate_fixed_set(
             records += batch
             bar.update(len(batch))
             done = [r for r in records if r.task == task]
-            bar.set_postfix(task=task, success=f"{sum(r.success for r in done) / len(done):.0%}")
+            show(bar, task=task, success=f"{sum(r.success for r in done) / len(done):.0%}")
     return records, sum(r.steps for r in records), time.perf_counter() - start
 
 

@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_cause
 from adademo_lerobot.core.files import check_writable_location
+from adademo_lerobot.core.progress import show
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
 from adademo_lerobot.dataset.layout import COL_SOURCE, POLICY_SOURCE
@@ -443,7 +444,8 @@ def training_loop(
         step += 1
         tracker.step()
         bar.update(1)
-        bar.set_postfix(
+        show(
+            bar,
             loss=f"{tracker.loss.val:.3f}",
             steps_s=f"{(step - start_step) / (time.perf_counter() - start):.1f}",
         )
