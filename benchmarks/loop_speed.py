@@ -99,7 +99,8 @@ def where_time_goes(suite, ckpt: str, clock: StepClock, episodes: int, demos: in
         split = {"eval": (time.perf_counter() - start, clock.seconds, policy.seconds)}
         clock.reset()
         start = time.perf_counter()
-        [p.result() for task in TASKS for p in local.collect_many(task, draws(2000, demos))]
+        for p in [p for task in TASKS for p in local.collect_many(task, draws(2000, demos))]:
+            p.result()
         split["collect"] = (time.perf_counter() - start, clock.seconds, expert.seconds)
     local.close()
     return split
@@ -220,10 +221,7 @@ def two_nodes(suite, ckpt: str, args, base: dict, shards: Path) -> dict:
         cluster.wait_for_nodes()
         ray_args = RayArgs(address=cluster.address, num_workers=2)
         ray, _, result = on_ray(suite, ckpt, args, base, ray_args, shards)
-        ray.close()
-        import ray as ray_module
-
-        ray_module.shutdown()
+        close_ray(ray)
     finally:
         cluster.shutdown()
     return result
@@ -271,8 +269,22 @@ def workers_raw_rate(folder: Path) -> float:
     )
 
 
+def close_ray(executor) -> None:
+    """Close an executor `on_ray` made, and the Ray it started (with the workers' clocks)."""
+    import ray
+
+    executor.close()
+    ray.shutdown()
+
+
+def rates(r: dict) -> tuple[float, float, float | None]:
+    """Evaluation, collection and (where measured) shard-writing collection steps/s of a run's units."""
+    shards = r["collect_steps"] / r["shard_seconds"] if "shard_seconds" in r else None
+    return r["eval_steps"] / r["eval_seconds"], r["collect_steps"] / r["collect_seconds"], shards
+
+
 def on_ray(suite, ckpt: str, args, base: dict, ray_args, shards: Path) -> tuple:
-    """A Ray executor with the policy loaded (left open), its fixed cost in seconds (start Ray or connect, create
+    """A Ray executor with the policy loaded (left open: `close_ray`), its fixed cost in seconds (start Ray or connect, create
     the actors, load the policy), and the units' results, checked equal to the local ones; then the same
     collection as a round runs it by default, each worker writing what it collects as a shard under `shards`."""
     import ray as ray_module
@@ -338,10 +350,7 @@ def main() -> None:
             rows.append(("ray", workers, result))
             if workers == 2:
                 driver = driver_costs(suite, ray, tmp, 4 * args.demos)
-            ray.close()
-            import ray as ray_module
-
-            ray_module.shutdown()
+            close_ray(ray)
         rows.append(("ray, 2 nodes", 2, two_nodes(suite, ckpt, args, base, tmp / "shards-nodes")))
 
     episodes = len(base["outcomes"])
@@ -363,13 +372,8 @@ def main() -> None:
         "collection writing shards (a round's default) steps/s | / raw |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    ev_local, co_local = (
-        base["eval_steps"] / base["eval_seconds"],
-        base["collect_steps"] / base["collect_seconds"],
-    )
     for name, workers, r in rows:
-        ev, co = r["eval_steps"] / r["eval_seconds"], r["collect_steps"] / r["collect_seconds"]
-        sh = r["collect_steps"] / r["shard_seconds"] if "shard_seconds" in r else None
+        ev, co, sh = rates(r)
         raw = r["raw_rate"]
         written = f"{sh:.0f} | {sh / raw:.2f}" if sh else "(appends in-process) | -"
         lines.append(
@@ -380,19 +384,15 @@ def main() -> None:
     per_demo_append_s = driver["journal_s"] + driver["fetch_s"] + driver["append_s"]
     per_demo_merge_s = driver["journal_s"] + driver["fetch_shard_s"] + driver["merge_s"]
     per_demo_round_s = driver["journal_s"] + driver["fetch_shard_s"] + driver["round_s"]
-    one_worker = rows[1][2]["collect_steps"] / rows[1][2]["collect_seconds"]
-    demos_per_s = one_worker / (rows[1][2]["collect_steps"] / (len(TASKS) * args.demos))
+    ev_local, co_local, _ = rates(base)
+    ray1 = rows[1][2]
+    ray1_eval, ray1_collect, ray1_shards = rates(ray1)
+    demos_per_s = ray1_collect / (ray1["collect_steps"] / (len(TASKS) * args.demos))
     shares = {
         kind: (sim / wall, work / wall, 1 - (sim + work) / wall) for kind, (wall, sim, work) in split.items()
     }
     # The least any loop runs per step: the simulator plus that work (the rate if nothing else took time).
     floor = {kind: sim / (sim + work) for kind, (_, sim, work) in split.items()}  # of the raw rate
-    ray1 = rows[1][2]
-    ray1_eval, ray1_collect = (
-        ray1["eval_steps"] / ray1["eval_seconds"],
-        ray1["collect_steps"] / ray1["collect_seconds"],
-    )
-    ray1_shards = ray1["collect_steps"] / ray1["shard_seconds"]
     lines += [
         "",
         "With 2 workers on 2 cores the driver process shares the cores with them (their raw rates drop with it).",
