@@ -208,6 +208,20 @@ def test_a_merge_that_cannot_finish_changes_nothing(tmp_path):
     assert file_digests(root) == before
 
 
+def test_a_pickled_demonstration_is_the_same_sent_as_one_array_per_key():
+    """As a Ray worker sends it back with --ray.worker_writes=false: Ray ships each array as its own buffer."""
+    demo = demos_of(MetaWorldSuiteConfig(tasks="push-v3").build(), 1)[0]
+    buffers = []
+    sent = pickle.loads(pickle.dumps(demo, protocol=5, buffer_callback=buffers.append), buffers=buffers)
+    assert len(buffers) <= len(demo.frames[0]) + 2  # its frames' keys, its initial and start states
+    assert sent.num_frames == demo.num_frames > 10 and sent.frames[0].keys() == demo.frames[0].keys()
+    for ours, theirs in zip(demo.frames, sent.frames, strict=True):
+        for key, value in ours.items():
+            assert theirs[key].dtype == value.dtype and np.array_equal(theirs[key], value), key
+    assert (sent.task, sent.seed, sent.start_step) == (demo.task, demo.seed, demo.start_step)
+    np.testing.assert_array_equal(sent.initial_state, demo.initial_state)
+
+
 def test_a_state_shard_is_what_lerobots_writer_writes(tmp_path):
     """State shards are written without LeRobot's per-episode dataset (a quarter of the worker's time), their
     frames as an Arrow file: the table (schema and its metadata included), the episode row and the stats must be

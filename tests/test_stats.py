@@ -22,6 +22,7 @@ def assert_same_stats(ours: dict, stock: dict) -> None:
     for key in stock:
         assert np.asarray(ours[key]).dtype == np.asarray(stock[key]).dtype, key
         np.testing.assert_array_equal(ours[key], stock[key], err_msg=key, strict=True)
+        assert np.asarray(ours[key]).tobytes() == np.asarray(stock[key]).tobytes(), key  # -0.0 and NaNs too
 
 
 def both(array: np.ndarray, axis=0, keepdims: bool = False) -> tuple[dict, dict]:
@@ -52,6 +53,12 @@ def corner_cases(rng: np.random.Generator) -> list[np.ndarray]:
         rng.uniform(0, 1, (2, 3)),  # the fewest frames a quantile is computed for
         rng.uniform(0, 1, (3, 3)).astype(np.float32),
         rng.normal(0, 1, (1001, 4)),
+        np.full((n, 2), -0.0),
+        rng.uniform(-1e300, 1e300, (n, 2)),
+        # float32 near 1e7: thousands of edges share a value, so the bins come from LeRobot's histograms
+        (1e7 + rng.uniform(0, 2, (n, 3))).astype(np.float32),
+        np.where(rng.uniform(size=(n, 3)) < 0.1, np.nan, rng.uniform(size=(n, 3))),
+        np.where(rng.uniform(size=(n, 3)) < 0.1, -np.inf, rng.uniform(size=(n, 3))),
     ]
     return cases
 
@@ -82,6 +89,23 @@ def assert_same_stats_by_feature(ours: dict, stock: dict) -> None:
     assert ours.keys() == stock.keys()
     for feature in stock:
         assert_same_stats(ours[feature], stock[feature])
+
+
+def test_ordinary_batches_take_one_pass_and_the_rest_lerobots_histograms():
+    """All dimensions of a finite batch in one pass; a NaN, an infinity or edges that repeat for thousands of
+    indices go through LeRobot's own histograms (their results are compared above)."""
+    rng = np.random.default_rng(0)
+    ordinary = OneBatchQuantileStats()
+    ordinary.update(rng.uniform(-1, 1, (70, 40)))
+    assert ordinary._sorted_bins.shape == (70, 40) and ordinary._histograms is None
+    for batch in (
+        np.array([[0.0, 1.0], [np.nan, 2.0], [1.0, 3.0]]),
+        np.array([[0.0, 1.0], [np.inf, 2.0], [1.0, 3.0]]),
+        (1e7 + rng.uniform(0, 2, (70, 3))).astype(np.float32),
+    ):
+        stats = OneBatchQuantileStats()
+        stats.update(batch)
+        assert stats._sorted_bins is None and len(stats._histograms) == batch.shape[1]
 
 
 def test_more_than_one_batch_is_refused():

@@ -1,5 +1,6 @@
 """The records the layers hand each other: an expert's demonstration, a policy episode's outcome, and the
-ledger's account of one task in one round. Plain dataclasses, no behaviour, no imports of the layers."""
+ledger's account of one task in one round. Plain dataclasses, no behaviour (but how a demonstration pickles its
+frames), no imports of the layers."""
 
 from __future__ import annotations
 
@@ -28,6 +29,36 @@ class Demonstration:
     @property
     def num_frames(self) -> int:
         return len(self.frames)
+
+    # Pickled (a Ray worker's result, --ray.worker_writes=false) as one array per key rather than a few small
+    # arrays per frame: Ray sends each array as its own buffer, ~200 for a 66-frame MetaWorld episode.
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        if self.frames and all(frame.keys() == self.frames[0].keys() for frame in self.frames):
+            state["frames"] = {key: _column([frame[key] for frame in self.frames]) for key in self.frames[0]}
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        if isinstance(state["frames"], dict):
+            columns = state["frames"]
+            count = len(next(iter(columns.values())))
+            state["frames"] = [{key: column[i] for key, column in columns.items()} for i in range(count)]
+        self.__dict__.update(state)
+
+
+def _column(values: list):
+    """The values of one key across frames: stacked if they are arrays of one shape and dtype (a row of the stack
+    is then equal to the frame's own array), else the list itself."""
+    first = values[0]
+    if (
+        isinstance(first, np.ndarray)
+        and first.ndim
+        and all(
+            isinstance(v, np.ndarray) and v.shape == first.shape and v.dtype == first.dtype for v in values
+        )
+    ):
+        return np.stack(values)
+    return values
 
 
 @dataclass

@@ -2,11 +2,12 @@
 
 LeRobot's `compute_episode_stats` feeds each feature's frames to a `RunningQuantileStats` in one batch, which
 builds a 5,000-bin histogram per dimension and then, per quantile, a cumulative sum over the bins: ~80% of
-writing a 70-frame state episode (a profile of 40 MetaWorld shard writes, 2026-12-05). For one batch the same quantiles follow from
-the few bins that hold a value: a value's bin is where it falls among the same edges, and a cumulative count at a
-bin is how many values lie in bins up to it. The edges, the arithmetic and the scalar types are LeRobot's, so the
-stats are bit for bit the same (`tests/test_stats.py` compares them with LeRobot's own on random and recorded
-data). Used while an episode is written (a worker's shard, an append); listed in docs/lerobot-overrides.md.
+writing a 70-frame state episode (a profile of 40 MetaWorld shard writes, 2026-12-05). For one batch the same
+quantiles follow from the few bins that hold a value: a value's bin is where it falls among the same edges, and a
+cumulative count at a bin is how many values lie in bins up to it; all dimensions of a feature are done at once,
+so that a 40-dimension state costs about what a scalar does. The edges, the arithmetic and the scalar types are
+LeRobot's, so the stats are bit for bit the same (`tests/test_stats.py` compares them with LeRobot's own on random
+and recorded data). Used while an episode is written (a worker's shard, an append); listed in docs/lerobot-overrides.md.
 """
 
 from __future__ import annotations
@@ -21,49 +22,82 @@ from adademo_lerobot.core.patching import temporarily_set
 
 
 class OneBatchQuantileStats(RunningQuantileStats):
-    """`RunningQuantileStats` fed exactly one batch (as `get_feature_stats` does): per dimension it keeps the sorted
-    bin index of each value instead of adding them into a histogram."""
+    """`RunningQuantileStats` fed exactly one batch (as `get_feature_stats` does), all dimensions at once: each
+    value's bin among the edges LeRobot's histogram would have, those edges computed only where they are read.
+    Batches with a NaN or an infinity go through LeRobot's own histograms."""
 
-    _sorted_bins: list[np.ndarray] | None = None
+    _sorted_bins: np.ndarray | None = None  # (values, dimensions): each column's bin indices, in order
 
-    def _update_histograms(self, batch: np.ndarray) -> None:
-        if self._sorted_bins is not None or self._count != len(batch):
+    def update(self, batch: np.ndarray) -> None:
+        if self._count:
             raise RuntimeError("OneBatchQuantileStats takes one batch; LeRobot's stats now feed it several")
-        self._sorted_bins = []
-        for i, edges in enumerate(self._bin_edges):
-            values = batch[:, i]
-            # np.histogram's bins (given edges): [e[j], e[j+1]), the last one closed; values outside count nowhere.
-            inside = values[(values >= edges[0]) & (values <= edges[-1])]
-            self._sorted_bins.append(np.sort(np.searchsorted(edges[1:-1], inside, side="right")))
+        values = batch.reshape(-1, batch.shape[-1])
+        values = values.astype(np.result_type(values.dtype, np.float32), copy=False)
+        if not np.isfinite(values).all():
+            return super().update(batch)
+        # LeRobot's first update without its per-dimension histograms, the mean folded in twice as it does.
+        self._mean, self._mean_of_squares = np.mean(values, axis=0), np.mean(values**2, axis=0)
+        self._min, self._max = np.min(values, axis=0), np.max(values, axis=0)
+        self._count = len(values)
+        self._mean += (np.mean(values, axis=0) - self._mean) * (len(values) / self._count)
+        self._mean_of_squares += (np.mean(values**2, axis=0) - self._mean_of_squares) * (
+            len(values) / self._count
+        )
+        # np.linspace(min - 1e-10, max + 1e-10, bins + 1) of each dimension, as its own arithmetic gives them.
+        self._first, self._last = self._min - 1e-10, self._max + 1e-10
+        self._step = (self._last - self._first) / self._num_quantile_bins
+        self._sorted_bins = self._bins_of(np.sort(values, axis=0))
+        if self._sorted_bins is None:  # edges that do not grow with their index: LeRobot's histograms
+            self._count = 0
+            super().update(batch)
+
+    def _edge(self, index: np.ndarray) -> np.ndarray:
+        """LeRobot's bin edges at `index` (one index per dimension, in the last axis): linspace's `i * step +
+        start` in the dimension's dtype, and the last edge exactly the stop."""
+        edge = index.astype(self._first.dtype) * self._step + self._first
+        return np.where(index == self._num_quantile_bins, self._last, edge)
+
+    def _bins_of(self, ordered: np.ndarray) -> np.ndarray | None:
+        """np.histogram's bin of each value ([e[j], e[j+1]), the last one closed): the number of interior edges at
+        or below it. Guessed by arithmetic, then moved until the exact edges agree; None if that does not settle
+        (edges that repeat for hundreds of indices)."""
+        top = self._num_quantile_bins - 1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            guess = np.floor((ordered - self._first) / self._step)
+        bins = np.where(np.isfinite(guess), np.clip(guess, 0, top), top).astype(np.intp)
+        for _ in range(64):
+            up = (bins < top) & (self._edge(bins + 1) <= ordered)
+            down = (bins > 0) & (self._edge(bins) > ordered)
+            if not (up.any() or down.any()):
+                return bins
+            bins += up.astype(np.intp) - down
+        return None
 
     def _compute_quantiles(self) -> list[np.ndarray]:
-        results = []
-        for q in self._quantile_list:
-            target_count = q * self._count
-            values = [
-                _quantile(bins, edges, target_count)
-                for bins, edges in zip(self._sorted_bins, self._bin_edges, strict=True)
-            ]
-            results.append(np.array(values))
+        """`RunningQuantileStats._compute_single_quantile` for every quantile and dimension at once: the first
+        bin whose cumulative count reaches the target, interpolated within it (the same float64 counts, the same
+        operations and dtypes, so the same results)."""
+        if self._sorted_bins is None:
+            return super()._compute_quantiles()
+        bins = self._sorted_bins
+        targets = [q * self._count for q in self._quantile_list]
+        # Cumulative counts are whole numbers: the bin of the ceil(target)-th value, when there is one.
+        read = [t for t in targets if t > 0 and math.ceil(t) <= len(bins)]
+        idx = bins[[math.ceil(t) - 1 for t in read]]  # (quantiles read, dimensions)
+        count_before = (bins[None] < idx[:, None]).sum(axis=1).astype(np.float64)
+        count_in_bin = (bins[None] <= idx[:, None]).sum(axis=1) - count_before
+        low = self._edge(idx)
+        fraction = (np.array(read)[:, None] - count_before) / count_in_bin
+        values = np.where(idx == 0, self._first, low + fraction * (self._edge(idx + 1) - low))
+        results, read_rows = [], iter(zip(idx, values, strict=True))
+        for target in targets:
+            if target <= 0 or math.ceil(target) > len(bins):
+                results.append((self._first if target <= 0 else self._last).copy())
+                continue
+            bin_row, value = next(read_rows)
+            # LeRobot returns the first edge itself for bin 0: its dtype too when every dimension does.
+            results.append(value if bin_row.any() else self._first.copy())
         return results
-
-
-def _quantile(sorted_bins: np.ndarray, edges: np.ndarray, target_count: float):
-    """`RunningQuantileStats._compute_single_quantile` of the histogram whose values fall in `sorted_bins`: the
-    first bin whose cumulative count reaches `target_count`, interpolated within it (the same float64 counts,
-    the same operations, so the same result and scalar type)."""
-    if target_count <= 0:
-        return edges[0]
-    needed = math.ceil(target_count)  # cumulative counts are whole numbers
-    if needed > len(sorted_bins):
-        return edges[-1]
-    idx = int(sorted_bins[needed - 1])
-    if idx == 0:
-        return edges[0]
-    count_before = np.float64(np.searchsorted(sorted_bins, idx, side="left"))
-    count_in_bin = np.float64(np.searchsorted(sorted_bins, idx, side="right")) - count_before
-    fraction = (target_count - count_before) / count_in_bin
-    return edges[idx] + fraction * (edges[idx + 1] - edges[idx])
 
 
 def lerobot_stats_by_value_bins():
