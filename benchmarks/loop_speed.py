@@ -311,6 +311,13 @@ def on_ray(suite, ckpt: str, args, base: dict, ray_args, shards: Path) -> tuple:
         run_units(ray, suite, ckpt, 2, 1, seed=99)
     result = run_units(ray, suite, ckpt, args.episodes, args.demos, seed=1)
     assert result["outcomes"] == base["outcomes"] and result["demos"] == base["demos"], "results differ"
+    # A worker's first shard also imports the writer (pyarrow's and `datasets`' modules, ~0.3 s once per worker
+    # and command): written in a warm-up, as the other first calls are, and timed.
+    ray.shard_folder = str(shards.with_name(shards.name + "-warm-up"))
+    start = time.perf_counter()
+    for _ in ray.actors:
+        [p.result() for t in TASKS for p in ray.collect_many(t, draws(98_000, 1))]
+    result["shard_warm_up_seconds"] = time.perf_counter() - start
     ray.shard_folder = str(shards)
     start = time.perf_counter()
     written = [p.result() for p in [p for t in TASKS for p in ray.collect_many(t, draws(1000, args.demos))]]
@@ -410,7 +417,10 @@ def main() -> None:
         "writing shards), taking the work's share of a step to be the local one's.",
         "",
         f"- Ray fixed cost per command (start a local Ray, create the actors, load the policy in each): "
-        f"{fixed[1]:.1f} s with 1 worker, {fixed[2]:.1f} s with 2.",
+        f"{fixed[1]:.1f} s with 1 worker, {fixed[2]:.1f} s with 2; then writing each worker's first shard of each "
+        "task (its first one imports the writer), before the timed shard-writing collection: "
+        f"{rows[1][2]['shard_warm_up_seconds']:.2f} s with 1 worker, {rows[2][2]['shard_warm_up_seconds']:.2f} s "
+        "with 2.",
         f"- Ray cost per unit against local, 1 worker: {1000 * per_episode:+.1f} ms per evaluation episode (in batches "
         f"of 10), {1000 * per_demo:+.1f} ms per expert episode.",
         "",

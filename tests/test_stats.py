@@ -55,8 +55,9 @@ def corner_cases(rng: np.random.Generator) -> list[np.ndarray]:
         rng.normal(0, 1, (1001, 4)),
         np.full((n, 2), -0.0),
         rng.uniform(-1e300, 1e300, (n, 2)),
-        # float32 near 1e7: thousands of edges share a value, so the bins come from LeRobot's histograms
+        # float32 near 1e7, or a narrow range: hundreds of edges share a value (searched among all edges)
         (1e7 + rng.uniform(0, 2, (n, 3))).astype(np.float32),
+        np.column_stack([0.6 + rng.uniform(0, 3e-7, n), rng.uniform(0, 1, n)]).astype(np.float32),
         np.where(rng.uniform(size=(n, 3)) < 0.1, np.nan, rng.uniform(size=(n, 3))),
         np.where(rng.uniform(size=(n, 3)) < 0.1, -np.inf, rng.uniform(size=(n, 3))),
     ]
@@ -71,6 +72,18 @@ def test_feature_stats_equal_lerobots(seed: int):
     assert_same_stats(*both(rng.uniform(0, 1, 40), keepdims=True))  # a 1-D feature (timestamps, indices)
     images = rng.integers(0, 256, (6, 3, 8, 8), dtype=np.uint8)  # per-channel stats of sampled images
     assert_same_stats(*both(images, axis=(0, 2, 3), keepdims=True))
+
+
+def test_feature_stats_equal_lerobots_over_ranges_and_magnitudes():
+    """Ranges from 1e-9 to 1e2 around values up to 1e7, float32 and float64, some rounded (ties): edges that are
+    all distinct, and edges that repeat for hundreds of indices."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        n, d = int(rng.integers(2, 200)), int(rng.integers(1, 6))
+        scale, centre = 10.0 ** rng.uniform(-9, 2, d), rng.uniform(-5, 5, d) * 10.0 ** rng.uniform(-3, 7, d)
+        array = centre + rng.uniform(0, 1, (n, d)) * scale
+        array = np.round(array, int(rng.integers(0, 4))) if rng.uniform() < 0.3 else array
+        assert_same_stats(*both(array.astype(np.float32) if rng.uniform() < 0.6 else array))
 
 
 def test_recorded_episodes_stats_equal_lerobots():
@@ -91,17 +104,17 @@ def assert_same_stats_by_feature(ours: dict, stock: dict) -> None:
         assert_same_stats(ours[feature], stock[feature])
 
 
-def test_ordinary_batches_take_one_pass_and_the_rest_lerobots_histograms():
-    """All dimensions of a finite batch in one pass; a NaN, an infinity or edges that repeat for thousands of
-    indices go through LeRobot's own histograms (their results are compared above)."""
+def test_finite_batches_take_one_pass_and_the_rest_lerobots_histograms():
+    """All dimensions of a finite batch at once (edges that repeat included); a NaN or an infinity goes through
+    LeRobot's own histograms (their results are compared above)."""
     rng = np.random.default_rng(0)
-    ordinary = OneBatchQuantileStats()
-    ordinary.update(rng.uniform(-1, 1, (70, 40)))
-    assert ordinary._sorted_bins.shape == (70, 40) and ordinary._histograms is None
+    for batch in (rng.uniform(-1, 1, (70, 40)), (1e7 + rng.uniform(0, 2, (70, 3))).astype(np.float32)):
+        stats = OneBatchQuantileStats()
+        stats.update(batch)
+        assert stats._sorted_bins.shape == batch.shape and stats._histograms is None
     for batch in (
         np.array([[0.0, 1.0], [np.nan, 2.0], [1.0, 3.0]]),
         np.array([[0.0, 1.0], [np.inf, 2.0], [1.0, 3.0]]),
-        (1e7 + rng.uniform(0, 2, (70, 3))).astype(np.float32),
     ):
         stats = OneBatchQuantileStats()
         stats.update(batch)

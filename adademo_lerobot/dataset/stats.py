@@ -24,7 +24,7 @@ from adademo_lerobot.core.patching import temporarily_set
 class OneBatchQuantileStats(RunningQuantileStats):
     """`RunningQuantileStats` fed exactly one batch (as `get_feature_stats` does), all dimensions at once: each
     value's bin among the edges LeRobot's histogram would have, those edges computed only where they are read.
-    Batches with a NaN or an infinity go through LeRobot's own histograms."""
+    A batch with a NaN or an infinity goes through LeRobot's own histograms."""
 
     _sorted_bins: np.ndarray | None = None  # (values, dimensions): each column's bin indices, in order
 
@@ -47,9 +47,6 @@ class OneBatchQuantileStats(RunningQuantileStats):
         self._first, self._last = self._min - 1e-10, self._max + 1e-10
         self._step = (self._last - self._first) / self._num_quantile_bins
         self._sorted_bins = self._bins_of(np.sort(values, axis=0))
-        if self._sorted_bins is None:  # edges that do not grow with their index: LeRobot's histograms
-            self._count = 0
-            super().update(batch)
 
     def _edge(self, index: np.ndarray) -> np.ndarray:
         """LeRobot's bin edges at `index` (one index per dimension, in the last axis): linspace's `i * step +
@@ -57,21 +54,25 @@ class OneBatchQuantileStats(RunningQuantileStats):
         edge = index.astype(self._first.dtype) * self._step + self._first
         return np.where(index == self._num_quantile_bins, self._last, edge)
 
-    def _bins_of(self, ordered: np.ndarray) -> np.ndarray | None:
+    def _bins_of(self, ordered: np.ndarray) -> np.ndarray:
         """np.histogram's bin of each value ([e[j], e[j+1]), the last one closed): the number of interior edges at
-        or below it. Guessed by arithmetic, then moved until the exact edges agree; None if that does not settle
-        (edges that repeat for hundreds of indices)."""
+        or below it. Guessed by arithmetic, then moved until the exact edges agree; a column still moving after a
+        few moves (its edges repeat for many indices: a narrow range in float32) is searched among all its edges."""
         top = self._num_quantile_bins - 1
         with np.errstate(divide="ignore", invalid="ignore"):
             guess = np.floor((ordered - self._first) / self._step)
         bins = np.where(np.isfinite(guess), np.clip(guess, 0, top), top).astype(np.intp)
-        for _ in range(64):
+        for _ in range(4):
             up = (bins < top) & (self._edge(bins + 1) <= ordered)
             down = (bins > 0) & (self._edge(bins) > ordered)
-            if not (up.any() or down.any()):
+            moving = (up | down).any(axis=0)
+            if not moving.any():
                 return bins
             bins += up.astype(np.intp) - down
-        return None
+        for i in np.flatnonzero(moving):
+            edges = np.linspace(self._first[i], self._last[i], self._num_quantile_bins + 1)  # LeRobot's own
+            bins[:, i] = np.searchsorted(edges[1:-1], ordered[:, i], side="right")
+        return bins
 
     def _compute_quantiles(self) -> list[np.ndarray]:
         """`RunningQuantileStats._compute_single_quantile` for every quantile and dimension at once: the first
