@@ -7,7 +7,8 @@ quantiles follow from the few bins that hold a value: a value's bin is where it 
 cumulative count at a bin is how many values lie in bins up to it; all dimensions of a feature are done at once,
 so that a 40-dimension state costs about what a scalar does. The edges, the arithmetic and the scalar types are
 LeRobot's, so the stats are bit for bit the same (`tests/test_stats.py` compares them with LeRobot's own on random
-and recorded data). Used while an episode is written (a worker's shard, an append); listed in docs/lerobot-overrides.md.
+and recorded data). Used while an episode is written (a worker's shard, an append); listed in
+docs/lerobot-overrides.md.
 """
 
 from __future__ import annotations
