@@ -23,6 +23,7 @@ from adademo_lerobot.collectors import make_collector
 from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.check import check_dataset_integrity
+from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.layout import TXN_FILE
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.dataset.shard_merge import ShardMerger, merge_into
@@ -313,7 +314,8 @@ def test_a_stopped_round_merges_the_shards_its_journal_committed_and_goes_on_fro
     journal = RoundJournal(merged, 1)
     assert [len(e["shards"]) for e in journal.of_type("shards")] == [2, 2]
     lost = journal.of_type("shards")[1]["shards"][1][0]
-    Path(lost).unlink()  # a machine crash lost the fourth shard its journal committed
+    assert not Path(lost).is_absolute()  # relative to the dataset's parent folder
+    (merged.parent / lost).unlink()  # a machine crash lost the fourth shard its journal committed
 
     # The next run merges three, collects the lost one and the rest again, and is stopped before a merge.
     assert run(demos[5:9])[1] == 3
@@ -338,6 +340,36 @@ def test_a_stopped_round_merges_the_shards_its_journal_committed_and_goes_on_fro
                 DemoDataset.open("local/x", merged), suite, 1, "b", "s", 2, None, RoundJournal(merged, 1)
             )
         )
+
+
+def test_a_stopped_round_moved_with_its_shards_merges_them_where_they_are_now(tmp_path):
+    """A user who moves a stopped round's dataset (to a bigger disk after a full one, say) moves its shard folder
+    beside it: the resumed round merges the shards its journal committed from there instead of collecting them
+    again."""
+    from adademo_lerobot.dataset.ledger import RoundJournal
+    from adademo_lerobot.dataset.shards import shard_folder
+    from adademo_lerobot.strategies.round_commits import OrderedAppender, merge_journaled_shards
+
+    suite = MetaWorldSuiteConfig(tasks="reach-v3,push-v3").build()
+    demos = demos_of(suite, 5)
+    root = tmp_path / "first-disk" / "dataset"
+    DemoDataset("local/x", root, suite.config).append(suite, demos[:1], 0, "initial", "scripted")
+    stopped = OrderedAppender(
+        DemoDataset.open("local/x", root), suite, 1, "budgeted", "scripted", 2, None, RoundJournal(root, 1)
+    )
+    for demo in demos[1:5]:
+        stopped.add(demo.task, write_shard(shard_folder(root, 1), suite, demo))  # two commits journaled
+    assert read_info(root)["total_episodes"] == 1  # not merged yet: the run stops here
+
+    shutil.move(tmp_path / "first-disk", tmp_path / "second-disk")
+    moved = tmp_path / "second-disk" / "dataset"
+    resumed = OrderedAppender(
+        DemoDataset.open("local/x", moved), suite, 1, "budgeted", "scripted", 2, None, RoundJournal(moved, 1)
+    )
+    assert merge_journaled_shards(resumed) == 4
+    resumed.close()
+    assert read_episode_metadata(moved)["adademo/seed"].tolist() == [d.seed for d in demos]
+    check_dataset_integrity(moved)
 
 
 def test_merges_laid_out_ahead_and_written_elsewhere_commit_in_order(tmp_path, monkeypatch):

@@ -4,9 +4,11 @@ line naming them, merged 100 at a time while the round goes on (`merge_journaled
 
 from __future__ import annotations
 
+import os
 import threading
 from collections import deque
 from collections.abc import Callable
+from pathlib import Path
 
 from adademo_lerobot.core.episodes import Demonstration
 from adademo_lerobot.core.errors import AdaDemoError
@@ -101,7 +103,9 @@ class OrderedAppender:
             if self.journal is not None and isinstance(batch[0], Shard):
                 if self._next_episode is None:
                     self._next_episode = int(read_info(self.dataset.root)["total_episodes"])
-                self.journal.append(shards_entry(self._next_episode, batch), sync=True)  # the commit
+                self.journal.append(
+                    shards_entry(self._next_episode, batch, self.dataset.root), sync=True
+                )  # the commit
                 self._next_episode += len(batch)
                 self._unmerged += batch
                 if len(self._unmerged) >= MERGE_EVERY:
@@ -151,9 +155,20 @@ class OrderedAppender:
             self.merged_shards += len(shards)
 
 
-def shards_entry(at: int, shards: list[Shard]) -> dict:
-    """The journal's commit of workers' shards: their folders, tasks and seeds, from episode index `at` on."""
-    return {"type": "shards", "at": at, "shards": [[s.path, s.task, s.seed] for s in shards]}
+def shards_entry(at: int, shards: list[Shard], root: Path) -> dict:
+    """The journal's commit of workers' shards: their paths, tasks and seeds, from episode index `at` on. A path
+    is relative to the folder that holds the dataset `root` and its shard folders, so that a dataset moved with them
+    between a stop and its resume (to a bigger disk, say) still finds them."""
+    return {
+        "type": "shards",
+        "at": at,
+        "shards": [[_from_parent(s.path, root), s.task, s.seed] for s in shards],
+    }
+
+
+def _from_parent(path: str, root: Path) -> str:
+    path, parent = os.path.abspath(path), os.path.dirname(os.path.abspath(root))
+    return os.path.relpath(path, parent) if path.startswith(parent + os.sep) else path
 
 
 def merge_journaled_shards(appender: OrderedAppender) -> int:
@@ -181,7 +196,8 @@ def merge_journaled_shards(appender: OrderedAppender) -> int:
                 )
     shards = []
     while total + len(shards) in committed:
-        shard = read_shard(committed[total + len(shards)][0])
+        # Relative to the dataset's parent folder (an absolute path, an older journal's, stays as it is).
+        shard = read_shard(Path(dataset.root).absolute().parent / committed[total + len(shards)][0])
         if shard is None:
             break
         shards.append(shard)
