@@ -36,14 +36,13 @@ class OneBatchQuantileStats(RunningQuantileStats):
         values = values.astype(np.result_type(values.dtype, np.float32), copy=False)
         if not np.isfinite(values).all():
             return super().update(batch)
-        # LeRobot's first update without its per-dimension histograms, the mean folded in twice as it does.
+        # LeRobot's first update without its per-dimension histograms.
         self._mean, self._mean_of_squares = np.mean(values, axis=0), np.mean(values**2, axis=0)
         self._min, self._max = np.min(values, axis=0), np.max(values, axis=0)
         self._count = len(values)
-        self._mean += (np.mean(values, axis=0) - self._mean) * (len(values) / self._count)
-        self._mean_of_squares += (np.mean(values**2, axis=0) - self._mean_of_squares) * (
-            len(values) / self._count
-        )
+        # It then folds the same batch in again, adding (mean - mean) * 1, a 0.0 (which turns a -0.0 mean into 0.0).
+        self._mean += 0.0
+        self._mean_of_squares += 0.0
         # np.linspace(min - 1e-10, max + 1e-10, bins + 1) of each dimension, as its own arithmetic gives them.
         self._first, self._last = self._min - 1e-10, self._max + 1e-10
         self._step = (self._last - self._first) / self._num_quantile_bins

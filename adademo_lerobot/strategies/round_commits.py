@@ -159,15 +159,12 @@ def shards_entry(at: int, shards: list[Shard], root: Path) -> dict:
     """The journal's commit of workers' shards: their paths, tasks and seeds, from episode index `at` on. A path
     is relative to the folder that holds the dataset `root` and its shard folders, so that a dataset moved with them
     between a stop and its resume (to a bigger disk, say) still finds them."""
-    return {
-        "type": "shards",
-        "at": at,
-        "shards": [[_from_parent(s.path, root), s.task, s.seed] for s in shards],
-    }
+    parent = os.path.dirname(os.path.abspath(root))
+    return {"type": "shards", "at": at, "shards": [[_from(parent, s.path), s.task, s.seed] for s in shards]}
 
 
-def _from_parent(path: str, root: Path) -> str:
-    path, parent = os.path.abspath(path), os.path.dirname(os.path.abspath(root))
+def _from(parent: str, path: str) -> str:
+    path = os.path.abspath(path)
     return os.path.relpath(path, parent) if path.startswith(parent + os.sep) else path
 
 
@@ -194,10 +191,10 @@ def merge_journaled_shards(appender: OrderedAppender) -> int:
                     f"{task} seed {seed} there; restore the dataset as the round left it, or remove "
                     f"{journal.path} to run the round again from its start"
                 )
-    shards = []
+    shards, parent = [], Path(dataset.root).absolute().parent
     while total + len(shards) in committed:
         # Relative to the dataset's parent folder (an absolute path, an older journal's, stays as it is).
-        shard = read_shard(Path(dataset.root).absolute().parent / committed[total + len(shards)][0])
+        shard = read_shard(parent / committed[total + len(shards)][0])
         if shard is None:
             break
         shards.append(shard)
