@@ -54,7 +54,8 @@ def corner_cases(rng: np.random.Generator) -> list[np.ndarray]:
         rng.uniform(0, 1, (3, 3)).astype(np.float32),
         rng.normal(0, 1, (1001, 4)),
         np.full((n, 2), -0.0),
-        np.array([[-5e-324], [0.0], [0.0]]),  # a mean that rounds to -0.0, which LeRobot's second fold makes 0.0
+        # a mean that rounds to -0.0, which LeRobot's second fold of the batch makes 0.0
+        np.array([[-5e-324], [0.0], [0.0]]),
         rng.uniform(-1e300, 1e300, (n, 2)),
         # float32 near 1e7, or a narrow range: hundreds of edges share a value (searched among all edges)
         (1e7 + rng.uniform(0, 2, (n, 3))).astype(np.float32),
