@@ -16,13 +16,14 @@ def scripted_policy(task: str) -> Callable[[dict], np.ndarray]:
     from lerobot.envs.metaworld import TASK_POLICY_MAPPING
 
     policy = TASK_POLICY_MAPPING[task]()
+    # The scripted policies' gains overshoot on purpose and the env clips, as intended. One narrow filter, not
+    # `catch_warnings` around every action (that cost ~1 % of a collection's time).
+    warnings.filterwarnings("ignore", message=r"Constant\(s\) may be too high", category=UserWarning)
 
     def act(observation: dict) -> np.ndarray:
         # A copy: some scripted policies edit the observation in place (door-open shifts the handle x).
         raw_obs = np.array(observation["environment_state"][:RAW_OBS_DIM], dtype=np.float64, copy=True)
-        with warnings.catch_warnings():  # "Constant(s) may be too high": the env clips, as intended
-            warnings.simplefilter("ignore")
-            return policy.get_action(raw_obs)
+        return policy.get_action(raw_obs)
 
     return act
 

@@ -9,6 +9,12 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 
+def executed_action(action, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The action a step executes and a dataset stores: float32, clipped to the action space. `np.clip`'s result,
+    without its per-call overhead (~2 us, which every recorded step paid twice)."""
+    return np.minimum(np.maximum(np.asarray(action, dtype=np.float32), low), high)
+
+
 @dataclass
 class Demonstration:
     """A successful expert episode: LeRobot frames (observation + executed action) from exactly `start_state`,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from adademo_lerobot.core.episodes import Demonstration, RolloutTrace
+from adademo_lerobot.core.episodes import Demonstration, RolloutTrace, executed_action
 
 
 def frame_from_observation(observation: dict, action: np.ndarray) -> dict:
@@ -48,9 +48,7 @@ class EpisodeRecorder(gym.Wrapper):
         return obs, info
 
     def step(self, action):
-        executed = np.clip(
-            np.asarray(action, dtype=np.float32), self.action_space.low, self.action_space.high
-        )
+        executed = executed_action(action, self.action_space.low, self.action_space.high)
         self.frames.append(frame_from_observation(self._last_obs, executed))
         obs, reward, terminated, truncated, info = self.env.step(executed)
         self.succeeded |= bool(info.get("is_success", False))
@@ -88,7 +86,7 @@ class RolloutTracer(gym.Wrapper):
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
         if not self._ended:
-            executed = np.clip(np.asarray(action, np.float32), self.action_space.low, self.action_space.high)
+            executed = executed_action(action, self.action_space.low, self.action_space.high)
             self.trace.actions.append(executed)
             self.trace.states.append(self._state())
             self.trace.observations.append(obs)

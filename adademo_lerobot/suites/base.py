@@ -24,6 +24,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from adademo_lerobot.core.episodes import executed_action
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.gl import check_rendering_works
 
@@ -338,7 +339,7 @@ class SuiteTaskEnv(gym.Env):
     def step(self, action):
         if self._holding:
             return self._final_obs, 0.0, False, False, {"is_success": False, "task": self.task}
-        action = np.clip(np.asarray(action, dtype=np.float32), self.action_space.low, self.action_space.high)
+        action = executed_action(action, self.action_space.low, self.action_space.high)
         raw, reward, success = self._raw_step(action)
         self._steps += 1
         terminated = success and self.terminate_on_success

@@ -9,6 +9,7 @@ goal is part of the initial state the policy must condition on, and the scripted
 from __future__ import annotations
 
 import hashlib
+import threading
 import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -107,7 +108,7 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     env._adademo_fresh_episode = {
         name: getattr(env, name) for name in (*EPISODE_ATTRIBUTES, "_last_stable_obs") if hasattr(env, name)
     }
-    env._adademo_settled_hand = SettledHandMemo()
+    env._adademo_settled_hand = settled_hand_memo(task)
     env.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
     if camera == "corner2":
         env.model.cam_pos[2] = [0.75, 0.075, 0.7]  # same corner2 placement as LeRobot's MetaWorld env
@@ -135,12 +136,17 @@ class SettledHandMemo:
     move per layout) take no part in the simulation, and reset code recomputes their world positions
     (`set_state` runs `mj_forward`) before anything reads them, so they are left out of the key; restores are
     checked equal to MetaWorld's own reset, trajectory included, for all 50 tasks (tests/test_suite_metaworld.py).
-    A few recent keys are kept; tasks that settle after placing objects simply miss."""
+    A few recent keys are kept; tasks that settle after placing objects simply miss.
+
+    One memo serves every env of a task in a process (`settled_hand_memo`): their models are copies of one parsed
+    model, and what a restore edits is reset to the pristine values or part of the key, so an entry settled in
+    one env is what any other would settle. A round builds a task's envs again each time it evaluates the task."""
 
     KEEP = 8
 
     def __init__(self):
         self._entries: OrderedDict[bytes, tuple[mujoco.MjData, np.ndarray]] = OrderedDict()
+        self._lock = threading.Lock()  # envs of one task may be stepped from the strategies' threads
 
     @staticmethod
     def _key(raw_env, steps: int) -> bytes:
@@ -165,18 +171,29 @@ class SettledHandMemo:
 
     def settle(self, raw_env, steps: int = 50) -> None:
         key = self._key(raw_env, steps)
-        hit = self._entries.get(key)
+        with self._lock:
+            hit = self._entries.get(key)
+            if hit is not None:
+                self._entries.move_to_end(key)
         if hit is not None:
-            self._entries.move_to_end(key)
             mujoco.mj_copyData(raw_env.data, raw_env.model, hit[0])
             raw_env.init_tcp = hit[1].copy()
             return
         type(raw_env)._reset_hand(raw_env, steps)  # MetaWorld's own settling
         snapshot = mujoco.MjData(raw_env.model)
         mujoco.mj_copyData(snapshot, raw_env.model, raw_env.data)
-        self._entries[key] = (snapshot, np.array(raw_env.init_tcp, copy=True))
-        while len(self._entries) > self.KEEP:
-            self._entries.popitem(last=False)
+        with self._lock:
+            self._entries[key] = (snapshot, np.array(raw_env.init_tcp, copy=True))
+            while len(self._entries) > self.KEEP:
+                self._entries.popitem(last=False)
+
+
+_settled_hands: dict[str, SettledHandMemo] = {}
+
+
+def settled_hand_memo(task: str) -> SettledHandMemo:
+    """The memo every env of `task` in this process shares."""
+    return _settled_hands.setdefault(task, SettledHandMemo())
 
 
 def sample_layout(raw_env, seed: int) -> np.ndarray:
