@@ -71,18 +71,17 @@ def test_fast_sampling_and_restore_equal_metaworlds_own_reset_for_every_task():
 
 def test_envs_of_a_task_share_their_settled_hands():
     """A round builds a task's envs again each time it evaluates the task: a new env's restore reuses what
-    another settled (its exactness is checked against MetaWorld's reset above)."""
-    from adademo_lerobot.suites.metaworld import restore_layout, sample_layout, settled_hand_memo
+    another settled (its exactness is checked against MetaWorld's reset above); another task's model does not."""
+    from adademo_lerobot.suites.metaworld import SETTLED_HANDS, restore_layout, sample_layout
 
-    first, second = make_raw_env("reach-v3"), make_raw_env("reach-v3")
-    memo = settled_hand_memo("reach-v3")
-    assert first._adademo_settled_hand is memo and second._adademo_settled_hand is memo
-    assert make_raw_env("push-v3")._adademo_settled_hand is not memo
+    first, second, push = make_raw_env("reach-v3"), make_raw_env("reach-v3"), make_raw_env("push-v3")
     layout = sample_layout(first, 5)
     obs = restore_layout(first, layout)
-    kept = dict(memo._entries)
+    kept = list(SETTLED_HANDS._entries)
     np.testing.assert_array_equal(restore_layout(second, layout), obs)
-    assert memo._entries.keys() == kept.keys()  # a hit: nothing settled again
+    assert list(SETTLED_HANDS._entries) == kept  # a hit: nothing settled again
+    restore_layout(push, sample_layout(push, 5))
+    assert len(SETTLED_HANDS._entries) == min(len(kept) + 1, SETTLED_HANDS.KEEP)  # settled for push's model
 
 
 def test_sampler_envs_of_the_4_most_recent_tasks_are_kept_and_states_do_not_depend_on_them():
