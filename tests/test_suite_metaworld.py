@@ -46,42 +46,24 @@ def _stock_reset(raw, layout=None, seed=None):
 
 def test_fast_sampling_and_restore_equal_metaworlds_own_reset_for_every_task():
     """Sampling skips hand settling, restore runs reset_model's first pass without it and reuses the remembered
-    result of the second pass's settling, which another env of the task may have settled: each must give exactly
-    what MetaWorld's full reset gives, layout, observation and the trajectory after it, for all 50 tasks."""
+    result of the second pass's settling: each must give exactly what MetaWorld's full reset gives, layout,
+    observation and the trajectory after it, for all 50 tasks."""
     from adademo_lerobot.suites.metaworld import all_task_names, restore_layout, sample_layout
 
     rng = np.random.default_rng(0)
     for task in all_task_names():
-        stock, ours, other = make_raw_env(task), make_raw_env(task), make_raw_env(task)
+        stock, ours = make_raw_env(task), make_raw_env(task)
         _, layout = _stock_reset(stock, seed=11)
         np.testing.assert_array_equal(sample_layout(ours, 11), layout, err_msg=task)
-        for env, seed in ((ours, 12), (other, 13)):  # another layout first (its settled hand is remembered)
-            restore_layout(env, sample_layout(env, seed))
-            for _ in range(int(rng.integers(1, 10))):  # some history in our envs only
-                env.step(rng.uniform(-1, 1, 4).astype(np.float32))
-        restore_layout(other, layout)  # another env of the task settles this layout's hand first
-        other.step(rng.uniform(-1, 1, 4).astype(np.float32))
+        restore_layout(ours, sample_layout(ours, 12))  # another layout first (its settled hand is remembered)
+        for _ in range(int(rng.integers(1, 10))):  # some history in our env only
+            ours.step(rng.uniform(-1, 1, 4).astype(np.float32))
         stock_obs, _ = _stock_reset(stock, layout=layout)
         np.testing.assert_array_equal(restore_layout(ours, layout), stock_obs, err_msg=task)
         for action in rng.uniform(-1, 1, (15, 4)).astype(np.float32):
             a, b = stock.step(action), ours.step(action)
             np.testing.assert_array_equal(a[0], b[0], err_msg=task)
             assert a[1] == b[1] and a[4]["success"] == b[4]["success"], task
-
-
-def test_envs_of_a_task_share_their_settled_hands():
-    """A round builds a task's envs again each time it evaluates the task: a new env's restore reuses what
-    another settled (its exactness is checked against MetaWorld's reset above); another task's model does not."""
-    from adademo_lerobot.suites.metaworld import SETTLED_HANDS, restore_layout, sample_layout
-
-    first, second, push = make_raw_env("reach-v3"), make_raw_env("reach-v3"), make_raw_env("push-v3")
-    layout = sample_layout(first, 5)
-    obs = restore_layout(first, layout)
-    kept = list(SETTLED_HANDS._entries)
-    np.testing.assert_array_equal(restore_layout(second, layout), obs)
-    assert list(SETTLED_HANDS._entries) == kept  # a hit: nothing settled again
-    restore_layout(push, sample_layout(push, 5))
-    assert len(SETTLED_HANDS._entries) == min(len(kept) + 1, SETTLED_HANDS.KEEP)  # settled for push's model
 
 
 def test_sampler_envs_of_the_4_most_recent_tasks_are_kept_and_states_do_not_depend_on_them():

@@ -9,7 +9,6 @@ goal is part of the initial state the policy must condition on, and the scripted
 from __future__ import annotations
 
 import hashlib
-import threading
 import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -108,6 +107,7 @@ def make_raw_env(task: str, render: bool = False, image_size: int = 128, camera:
     env._adademo_fresh_episode = {
         name: getattr(env, name) for name in (*EPISODE_ATTRIBUTES, "_last_stable_obs") if hasattr(env, name)
     }
+    env._adademo_settled_hand = SettledHandMemo()
     env.model.vis.quality.shadowsize = 0  # shadows make CPU (OSMesa) rendering ~2x slower
     if camera == "corner2":
         env.model.cam_pos[2] = [0.75, 0.075, 0.7]  # same corner2 placement as LeRobot's MetaWorld env
@@ -135,23 +135,17 @@ class SettledHandMemo:
     move per layout) take no part in the simulation, and reset code recomputes their world positions
     (`set_state` runs `mj_forward`) before anything reads them, so they are left out of the key; restores are
     checked equal to MetaWorld's own reset, trajectory included, for all 50 tasks (tests/test_suite_metaworld.py).
-    Tasks that settle after placing objects miss for every new layout.
+    A few recent keys are kept; tasks that settle after placing objects simply miss."""
 
-    One memo serves every env of a process (`SETTLED_HANDS`), keyed also by the model's file: envs built from one
-    file hold copies of one parsed model, and what a restore edits is reset to the pristine values or part of the
-    key, so an entry settled in one env is what any other would settle (a round builds a task's envs again each
-    time it evaluates the task). The most recently used entries are kept, ~0.7 MB each."""
-
-    KEEP = 32
+    KEEP = 8
 
     def __init__(self):
         self._entries: OrderedDict[bytes, tuple[mujoco.MjData, np.ndarray]] = OrderedDict()
-        self._lock = threading.Lock()  # envs may be stepped from the strategies' threads
 
     @staticmethod
     def _key(raw_env, steps: int) -> bytes:
         model, data = raw_env.model, raw_env.data
-        digest = hashlib.blake2b(raw_env.fullpath.encode(), digest_size=16)
+        digest = hashlib.blake2b(digest_size=16)
         for array in (
             data.qpos,
             data.qvel,
@@ -171,24 +165,18 @@ class SettledHandMemo:
 
     def settle(self, raw_env, steps: int = 50) -> None:
         key = self._key(raw_env, steps)
-        with self._lock:
-            hit = self._entries.get(key)
-            if hit is not None:
-                self._entries.move_to_end(key)
+        hit = self._entries.get(key)
         if hit is not None:
+            self._entries.move_to_end(key)
             mujoco.mj_copyData(raw_env.data, raw_env.model, hit[0])
             raw_env.init_tcp = hit[1].copy()
             return
         type(raw_env)._reset_hand(raw_env, steps)  # MetaWorld's own settling
         snapshot = mujoco.MjData(raw_env.model)
         mujoco.mj_copyData(snapshot, raw_env.model, raw_env.data)
-        with self._lock:
-            self._entries[key] = (snapshot, np.array(raw_env.init_tcp, copy=True))
-            while len(self._entries) > self.KEEP:
-                self._entries.popitem(last=False)
-
-
-SETTLED_HANDS = SettledHandMemo()
+        self._entries[key] = (snapshot, np.array(raw_env.init_tcp, copy=True))
+        while len(self._entries) > self.KEEP:
+            self._entries.popitem(last=False)
 
 
 def sample_layout(raw_env, seed: int) -> np.ndarray:
@@ -231,7 +219,7 @@ def restore_layout(raw_env, layout: np.ndarray) -> np.ndarray:
     with hand_settling_skipped(raw_env):
         raw_env.reset_model()
     mujoco.mj_resetData(raw_env.model, raw_env.data)
-    with temporarily_set(raw_env, "_reset_hand", partial(SETTLED_HANDS.settle, raw_env)):
+    with temporarily_set(raw_env, "_reset_hand", partial(raw_env._adademo_settled_hand.settle, raw_env)):
         obs = raw_env.reset_model()
     raw_env._prev_obs = obs[:18].copy()
     obs[18:36] = raw_env._prev_obs
