@@ -159,11 +159,20 @@ def shards_entry(at: int, shards: list[Shard], root: Path) -> dict:
     """The journal's commit of workers' shards: their paths, tasks and seeds, from episode index `at` on. A path
     is relative to the folder that holds the dataset `root` and its shard folders, so that a dataset moved with them
     between a stop and its resume (to a bigger disk, say) still finds them."""
-    parent = os.path.dirname(os.path.abspath(root))
-    return {"type": "shards", "at": at, "shards": [[_from(parent, s.path), s.task, s.seed] for s in shards]}
+    parent = _shards_base(root)
+    return {
+        "type": "shards",
+        "at": at,
+        "shards": [[_relative_under(parent, s.path), s.task, s.seed] for s in shards],
+    }
 
 
-def _from(parent: str, path: str) -> str:
+def _shards_base(root: Path) -> str:
+    """The folder a journal's shard paths are relative to: the one holding the dataset and its shard folders."""
+    return os.path.dirname(os.path.abspath(root))
+
+
+def _relative_under(parent: str, path: str) -> str:
     path = os.path.abspath(path)
     return os.path.relpath(path, parent) if path.startswith(parent + os.sep) else path
 
@@ -191,7 +200,7 @@ def merge_journaled_shards(appender: OrderedAppender) -> int:
                     f"{task} seed {seed} there; restore the dataset as the round left it, or remove "
                     f"{journal.path} to run the round again from its start"
                 )
-    shards, parent = [], Path(dataset.root).absolute().parent
+    shards, parent = [], Path(_shards_base(dataset.root))
     while total + len(shards) in committed:
         # Relative to the dataset's parent folder (an absolute path, an older journal's, stays as it is).
         shard = read_shard(parent / committed[total + len(shards)][0])
