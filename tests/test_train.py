@@ -1,5 +1,6 @@
 """adademo-train on real datasets: ACT and Diffusion, reload, fine-tune from stock lerobot-train, resume, errors."""
 
+import copy
 import json
 import re
 import shutil
@@ -285,6 +286,69 @@ def test_the_weighted_sampler_is_sharded_across_processes():
         )
     assert [len(s) for s in shards] == [steps, steps]
     assert shards[0] == everything[0::2] and shards[1] == everything[1::2]
+
+
+@pytest.mark.parametrize("policy", ["act", "diffusion"])
+def test_updating_all_tensors_at_once_gives_the_same_weights(policy):
+    """LeRobot's optimizer preset of ACT (AdamW) and Diffusion (Adam) on CPU, one tensor at a time (torch's
+    default there) against all at once: the same weights, bit for bit, step after step."""
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+
+    from adademo_lerobot.loop.train import update_all_tensors_at_once
+
+    preset = {"act": ACTConfig, "diffusion": DiffusionConfig}[policy]().get_optimizer_preset()
+    torch.manual_seed(0)
+    layers = torch.nn.Sequential(
+        torch.nn.TransformerEncoderLayer(32, 4, 64, dropout=0.0, batch_first=True), torch.nn.Linear(32, 6)
+    )
+    twin = copy.deepcopy(layers)
+    start = [p.detach().clone() for p in layers.parameters()]
+    one_at_a_time, at_once = preset.build(layers.parameters()), preset.build(twin.parameters())
+    update_all_tensors_at_once(at_once)
+    assert [g["foreach"] for g in one_at_a_time.param_groups] == [None]
+    assert [g["foreach"] for g in at_once.param_groups] == [True]
+    for _ in range(25):
+        x = torch.randn(8, 10, 32)
+        for model, optimizer in ((layers, one_at_a_time), (twin, at_once)):
+            optimizer.zero_grad()
+            model(x).square().mean().backward()
+            optimizer.step()
+    after = list(layers.parameters())
+    assert all(torch.equal(a, b) for a, b in zip(after, twin.parameters(), strict=True))
+    assert not any(torch.equal(a, s) for a, s in zip(after, start, strict=True))  # every tensor moved
+
+
+def test_optimizer_state_saved_updating_all_at_once_resumes_in_stock_lerobot_and_back(tmp_path):
+    """Saved through LeRobot's own optimizer-state functions, the state keeps torch's default, so stock
+    lerobot-train (a new optimizer of the preset, as it builds one) loads it; loaded back into ours, it updates all
+    at once again, with the moments restored."""
+    from lerobot.optim.optimizers import load_optimizer_state, save_optimizer_state
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.utils.constants import OPTIMIZER_PARAM_GROUPS
+
+    from adademo_lerobot.loop.train import update_all_tensors_at_once
+
+    preset = ACTConfig().get_optimizer_preset()
+    layer = torch.nn.Linear(4, 3)
+    ours = preset.build(layer.parameters())
+    update_all_tensors_at_once(ours)
+    layer(torch.randn(5, 4)).sum().backward()
+    ours.step()
+    for folder in ("ours", "stock"):
+        (tmp_path / folder).mkdir()  # as save_checkpoint makes it
+    save_optimizer_state(ours, tmp_path / "ours")
+    assert json.loads((tmp_path / "ours" / OPTIMIZER_PARAM_GROUPS).read_text())[0]["foreach"] is None
+    stock = load_optimizer_state(preset.build(layer.parameters()), tmp_path / "ours")
+    assert stock.param_groups[0]["foreach"] is None
+    moments = ours.state[layer.weight]["exp_avg"]
+    assert torch.equal(stock.state[stock.param_groups[0]["params"][0]]["exp_avg"], moments)
+    save_optimizer_state(stock, tmp_path / "stock")
+    again = preset.build(layer.parameters())
+    update_all_tensors_at_once(again)
+    again = load_optimizer_state(again, tmp_path / "stock")
+    assert again.param_groups[0]["foreach"] is True
+    assert torch.equal(again.state[layer.weight]["exp_avg"], moments)
 
 
 @pytest.mark.slow
