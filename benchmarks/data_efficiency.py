@@ -461,7 +461,7 @@ TITLES = {
     # The second table: the same arms on the hard 8 (`recipes/budgeted.yaml`), 3 seeds, per-seed test states.
     "hard8_cost": "The hard 8 of MetaWorld, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
     # The paper's Adroit table (`recipes/adroit_table.yaml`): the planner for hammer and pen, scripted door/relocate.
-    "adroit": "Adroit (door, hammer, pen, relocate): Uniform, AdaDemo, budgeted, costed_probe",
+    "adroit": "Adroit (door, hammer, pen, relocate): Uniform, AdaDemo, budgeted, costed_split",
 }
 TAKEOVER_ARMS = {
     "budgeted_takeover",

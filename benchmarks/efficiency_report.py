@@ -66,6 +66,10 @@ class Run:
         return all(np.array_equal(self.added[m], self.added_high[m]) for m in self.added)
 
 
+def n_seeds(n: int) -> str:
+    return f"{n} seed" if n == 1 else f"{n} seeds"
+
+
 def cumulative_added(ledger: list[dict], rounds: int, cost, task: str | None = None) -> np.ndarray:
     """`cost(row)` summed over the ledger's rows (of `task`, or all) per round, cumulated: the total added after
     round 0..rounds-1 (the ledger's first expansion round is round 1)."""
@@ -872,7 +876,7 @@ def points_goal_line(measure: str, diffs, goal: float = 5, min_seeds: int = 5) -
     seeds = f", >= {min_seeds} seeds" if min_seeds else ""
     enough = len(low) >= min_seeds
     # Met on the least favourable bound of expert episodes, missed when even the most favourable misses.
-    reasons = [] if enough else [f"{len(low)} seeds of the {min_seeds} asked"]
+    reasons = [] if enough else [f"{n_seeds(len(low))} of the {min_seeds} asked"]
     if np.isnan(half_high):
         reasons.append("no interval from one seed")
     elif mean_high - half_high <= 0:
@@ -934,7 +938,7 @@ def efficiency_goal_lines(
         return ["No arm has finished a seed beside Uniform yet."]
     arm = best_arm(comparisons, list(comparisons), lambda a: comparisons[a].demos_diff.mean())
     c = comparisons[arm]
-    lines = [f"Best arm: {labels.get(arm, arm)} ({len(c.seeds)} seeds)."]
+    lines = [f"Best arm: {labels.get(arm, arm)} ({n_seeds(len(c.seeds))})."]
     readings = [
         f"{name} {ratio_verdict(c.ratio[r]['demos'], 1 / 3)} ({fmt_ratio(c.ratio[r]['demos'], note=False)})"
         for r, name in READINGS.items()
@@ -982,13 +986,13 @@ def cost_goal_lines(comparisons: dict[str, Comparison], labels: dict[str, str]) 
         else "; ".join(f"{'met' if ok else 'missed'} {name}" for name, ok in met.items())
     )
     lines = [
-        f"Best arm by c*: {labels.get(arm, arm)} ({len(c.seeds)} seeds).",
+        f"Best arm by c*: {labels.get(arm, arm)} ({n_seeds(len(c.seeds))}).",
         "- Uniform's final average with at most 1.0x Uniform's episodes (c* >= 1) and at most 1/3 of its "
         f"demonstrations, 95 % intervals: {overall}: {'; '.join(readings)}.",
     ]
     arm = best_arm(comparisons, list(comparisons), lambda a: float(np.mean(comparisons[a].episodes_diff.low)))
     lines += [
-        f"Best arm at equal episodes: {labels.get(arm, arm)} ({len(comparisons[arm].seeds)} seeds).",
+        f"Best arm at equal episodes: {labels.get(arm, arm)} ({n_seeds(len(comparisons[arm].seeds))}).",
         points_goal_line("episodes", comparisons[arm].episodes_diff, goal=3, min_seeds=0),
     ]
     return lines
@@ -1023,7 +1027,7 @@ def goal_lines(
         return ["No takeover arm has finished a seed yet."]
     arm = best_arm(comparisons, takeover, lambda a: comparisons[a].frames_diff.mean())
     c = comparisons[arm]
-    lines = [f"Best takeover arm: {labels.get(arm, arm)} ({len(c.seeds)} seeds)."]
+    lines = [f"Best takeover arm: {labels.get(arm, arm)} ({n_seeds(len(c.seeds))})."]
     readings = [
         f"{name} {ratio_verdict(c.ratio[r]['frames'], 1 / 3)} "
         f"({fmt_ratio(c.ratio[r]['frames'], note=False)}, goal 0.33x)"
