@@ -183,6 +183,9 @@ LABELS = {
     "budgeted_takeover_retry3": "Budgeted + takeover corrections (disagreement, 3 attempts there, no fallback)",
 }
 TORCH_THREADS: list[str] = []
+# --base_flags: adademo-run flags for building a seed's round-0 base only (its collection and training may use both
+# cores before the arms run side by side, one core each); they come last, so they win over --torch_threads.
+BASE_FLAGS: list[str] = []
 # --test_states per_seed: each seed is evaluated on its own fixed initial states (--eval.seed=100+seed), so the
 # intervals over seeds include the sampling of the test states; `shared`: every seed on eval seed 100's (the
 # folders written before this option).
@@ -220,7 +223,7 @@ def ensure_base(out: Path, seed: int) -> Path:
     with open(base.parent / "base.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (base / "eval" / "round-000" / "eval_summary.json").exists():
-            adademo_run(base, "--rounds=0", *seed_flags(seed))
+            adademo_run(base, "--rounds=0", *seed_flags(seed), *BASE_FLAGS)
     return base
 
 
@@ -503,6 +506,13 @@ def main() -> None:
         help="per_seed: each seed's own fixed evaluation states (--eval.seed=100+seed); shared: eval seed 100's",
     )
     parser.add_argument(
+        "--base_flags",
+        default="",
+        help="arms: adademo-run flags for building each seed's round-0 base only, e.g. '--executor=ray "
+        "--ray.num_workers=2 --torch_threads=2' (Ray's collection equals the local one; the torch threads change "
+        "the base's trained weights, so say which in the results)",
+    )
+    parser.add_argument(
         "--cpu_isa",
         choices=["avx2", "native"],
         default="avx2",
@@ -515,6 +525,7 @@ def main() -> None:
     SUMMARIES, RECIPE = RESULTS / args.summaries, args.recipe.resolve()
     TEST_STATES[0] = args.test_states
     SUMMARIES.mkdir(parents=True, exist_ok=True)
+    BASE_FLAGS.extend(args.base_flags.split())
     if args.torch_threads is not None:
         TORCH_THREADS.append(f"--torch_threads={args.torch_threads}")
         os.environ["OMP_NUM_THREADS"] = str(args.torch_threads)
