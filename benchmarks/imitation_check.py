@@ -7,7 +7,10 @@
   same demonstrations it was trained on: failing there is not generalization, the policy does not reproduce its
   own training data.
 
-    python benchmarks/imitation_check.py --run_dir RUN [--round 0] [--episodes 20]
+A third column runs the policy from new initial states (seeds it was not trained on), for comparison.
+
+    python benchmarks/imitation_check.py --run_dir RUN [--round 0] [--episodes 20] [--new_states 20]
+    python benchmarks/imitation_check.py --dataset DATASET_ROOT --policy CHECKPOINT/pretrained_model
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ from adademo_lerobot.core.tables import table
 from adademo_lerobot.evaluation.policy import load_policy
 from adademo_lerobot.evaluation.rollouts import BatchedEvaluator
 from adademo_lerobot.suites import suite_config_from_dict
+
+# New initial states: seeds 1000, 1001, ... (collection seeds are 64-bit hashes of the run's seed, never these).
+NEW_STATE_SEEDS = 1000
 
 
 def read_parquets(folder: Path, columns: list[str] | None = None) -> pa.Table:
@@ -48,8 +54,7 @@ def replays_succeed(suite, task: str, episodes: list[dict], actions_of: dict[int
     return succeeded
 
 
-def check(run_dir: Path, round_index: int, per_task: int) -> str:
-    dataset = run_dir / "dataset"
+def check(dataset: Path, policy: str, per_task: int, new_states: int) -> str:
     suite = suite_config_from_dict(
         json.loads((dataset / "meta" / "adademo" / "suite.json").read_text())
     ).build()
@@ -59,33 +64,48 @@ def check(run_dir: Path, round_index: int, per_task: int) -> str:
     frames = read_parquets(dataset / "data", ["episode_index", "action"])
     index = np.asarray(frames.column("episode_index").to_pylist())
     actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)
-    state = json.loads((run_dir / "run_state.json").read_text())
-    evaluator = BatchedEvaluator(suite, load_policy(state["done"][f"train-{round_index}"]["result"]))
+    evaluator = BatchedEvaluator(suite, load_policy(policy))
     rows = []
     for task in suite.tasks:
         mine = [e for e in episodes if e["tasks"] == [task]][:per_task]
         actions_of = {e["episode_index"]: actions[index == e["episode_index"]] for e in mine}
         replayed = replays_succeed(suite, task, mine, actions_of)
-        closed_loop = sum(r.success for r in evaluator.run(task, [int(e["adademo/seed"]) for e in mine]))
-        rows.append([task, len(mine), f"{replayed}/{len(mine)}", f"{closed_loop}/{len(mine)}"])
+        trained_on = sum(r.success for r in evaluator.run(task, [int(e["adademo/seed"]) for e in mine]))
+        new = sum(r.success for r in evaluator.run(task, [NEW_STATE_SEEDS + i for i in range(new_states)]))
+        rows.append(
+            [task, len(mine), f"{replayed}/{len(mine)}", f"{trained_on}/{len(mine)}", f"{new}/{new_states}"]
+        )
     headers = [
         "task",
         "first demonstrations",
         "replayed, succeed",
-        f"round-{round_index} policy from their states",
+        "policy from their initial states",
+        "policy from new initial states",
     ]
     return table(headers, rows)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--run_dir", type=Path, required=True)
-    parser.add_argument("--round", type=int, default=0, help="whose trained policy runs (default: round 0)")
+    parser.add_argument("--run_dir", type=Path, help="a run folder: its dataset and a round's policy")
+    parser.add_argument(
+        "--round", type=int, default=0, help="--run_dir: whose policy runs (default: round 0)"
+    )
+    parser.add_argument("--dataset", type=Path, help="instead of --run_dir: a dataset root (adademo's)")
+    parser.add_argument("--policy", help="with --dataset: a checkpoint's pretrained_model folder")
     parser.add_argument("--episodes", type=int, default=20, help="first demonstrations per task checked")
+    parser.add_argument("--new_states", type=int, default=20, help="new initial states per task")
     args = parser.parse_args()
+    if args.run_dir is not None:
+        state = json.loads((args.run_dir / "run_state.json").read_text())
+        dataset, policy = args.run_dir / "dataset", state["done"][f"train-{args.round}"]["result"]
+    elif args.dataset is not None and args.policy is not None:
+        dataset, policy = args.dataset, args.policy
+    else:
+        parser.error("give --run_dir, or --dataset and --policy")
     torch.set_num_threads(1)  # as the evaluation runs policies
-    print(f"{machine_line()}; run {args.run_dir}, round {args.round}")
-    print(check(args.run_dir, args.round, args.episodes))
+    print(f"{machine_line()}; dataset {dataset}, policy {policy}")
+    print(check(dataset, policy, args.episodes, args.new_states))
 
 
 if __name__ == "__main__":
