@@ -66,10 +66,6 @@ class Run:
         return all(np.array_equal(self.added[m], self.added_high[m]) for m in self.added)
 
 
-def n_seeds(n: int) -> str:
-    return f"{n} seed" if n == 1 else f"{n} seeds"
-
-
 def cumulative_added(ledger: list[dict], rounds: int, cost, task: str | None = None) -> np.ndarray:
     """`cost(row)` summed over the ledger's rows (of `task`, or all) per round, cumulated: the total added after
     round 0..rounds-1 (the ledger's first expansion round is round 1)."""
@@ -223,11 +219,15 @@ def diff_at_equal(
 ) -> tuple[float, float]:
     """Points of average success over Uniform (or another arm) with both curves read at the same cost (the
     smaller of the two final costs in `measure`), and that cost."""
-    x_mine, x_uniform = mine.cost(measure, mine_high), uniform.cost(measure, uniform_high)
-    level = min(x_mine[-1], x_uniform[-1])
-    return 100 * (value_at(x_mine, mine.average, level) - value_at(x_uniform, uniform.average, level)), float(
-        level
+    return diff_of_curves(
+        mine.cost(measure, mine_high), mine.average, uniform.cost(measure, uniform_high), uniform.average
     )
+
+
+def diff_of_curves(x_mine, y_mine, x_other, y_other) -> tuple[float, float]:
+    """Points of `y_mine` over `y_other`, both curves read at the smaller of their final costs, and that cost."""
+    level = min(x_mine[-1], x_other[-1])
+    return 100 * (value_at(x_mine, y_mine, level) - value_at(x_other, y_other, level)), float(level)
 
 
 def diff_at_equal_points(mine: Run, uniform: Run, measure: str, mine_high: bool, uniform_high: bool) -> float:
@@ -876,7 +876,7 @@ def points_goal_line(measure: str, diffs, goal: float = 5, min_seeds: int = 5) -
     seeds = f", >= {min_seeds} seeds" if min_seeds else ""
     enough = len(low) >= min_seeds
     # Met on the least favourable bound of expert episodes, missed when even the most favourable misses.
-    reasons = [] if enough else [f"{n_seeds(len(low))} of the {min_seeds} asked"]
+    reasons = [] if enough else [f"{seeds_text(len(low))} of the {min_seeds} asked"]
     if np.isnan(half_high):
         reasons.append("no interval from one seed")
     elif mean_high - half_high <= 0:
@@ -938,7 +938,7 @@ def efficiency_goal_lines(
         return ["No arm has finished a seed beside Uniform yet."]
     arm = best_arm(comparisons, list(comparisons), lambda a: comparisons[a].demos_diff.mean())
     c = comparisons[arm]
-    lines = [f"Best arm: {labels.get(arm, arm)} ({n_seeds(len(c.seeds))})."]
+    lines = [f"Best arm: {labels.get(arm, arm)} ({seeds_text(len(c.seeds))})."]
     readings = [
         f"{name} {ratio_verdict(c.ratio[r]['demos'], 1 / 3)} ({fmt_ratio(c.ratio[r]['demos'], note=False)})"
         for r, name in READINGS.items()
@@ -986,13 +986,13 @@ def cost_goal_lines(comparisons: dict[str, Comparison], labels: dict[str, str]) 
         else "; ".join(f"{'met' if ok else 'missed'} {name}" for name, ok in met.items())
     )
     lines = [
-        f"Best arm by c*: {labels.get(arm, arm)} ({n_seeds(len(c.seeds))}).",
+        f"Best arm by c*: {labels.get(arm, arm)} ({seeds_text(len(c.seeds))}).",
         "- Uniform's final average with at most 1.0x Uniform's episodes (c* >= 1) and at most 1/3 of its "
         f"demonstrations, 95 % intervals: {overall}: {'; '.join(readings)}.",
     ]
     arm = best_arm(comparisons, list(comparisons), lambda a: float(np.mean(comparisons[a].episodes_diff.low)))
     lines += [
-        f"Best arm at equal episodes: {labels.get(arm, arm)} ({n_seeds(len(comparisons[arm].seeds))}).",
+        f"Best arm at equal episodes: {labels.get(arm, arm)} ({seeds_text(len(comparisons[arm].seeds))}).",
         points_goal_line("episodes", comparisons[arm].episodes_diff, goal=3, min_seeds=0),
     ]
     return lines
@@ -1027,7 +1027,7 @@ def goal_lines(
         return ["No takeover arm has finished a seed yet."]
     arm = best_arm(comparisons, takeover, lambda a: comparisons[a].frames_diff.mean())
     c = comparisons[arm]
-    lines = [f"Best takeover arm: {labels.get(arm, arm)} ({n_seeds(len(c.seeds))})."]
+    lines = [f"Best takeover arm: {labels.get(arm, arm)} ({seeds_text(len(c.seeds))})."]
     readings = [
         f"{name} {ratio_verdict(c.ratio[r]['frames'], 1 / 3)} "
         f"({fmt_ratio(c.ratio[r]['frames'], note=False)}, goal 0.33x)"

@@ -20,7 +20,7 @@ import argparse
 
 import numpy as np
 from _common import RESULTS
-from efficiency_report import Run, load_runs, t_interval, value_at
+from efficiency_report import Run, diff_of_curves, fmt_diff, load_runs
 
 from adademo_lerobot.core import costs
 from adademo_lerobot.core.tables import table
@@ -39,10 +39,9 @@ def episodes_saved(run: Run) -> tuple[float, float]:
 def gain_at_equal_episodes(mine: Run, uniform: Run, saved: float = 0.0) -> float:
     """Points over Uniform as the report reads equal episodes (both curves at the smaller of the two final
     costs), with `saved` episodes per task taken off the arm's, spread over its rounds in proportion."""
-    x_mine, x_uniform = mine.cost("episodes"), uniform.cost("episodes")
+    x_mine = mine.cost("episodes")
     x = x_mine * (1 - saved / x_mine[-1])
-    level = min(x[-1], x_uniform[-1])
-    return 100 * (value_at(x, mine.average, level) - value_at(x_uniform, uniform.average, level))
+    return diff_of_curves(x, mine.average, uniform.cost("episodes"), uniform.average)[0]
 
 
 def levers(summaries: str, arm: str) -> str:
@@ -63,14 +62,12 @@ def levers(summaries: str, arm: str) -> str:
         ]
         values.append(value)
         rows.append([str(seed), *(f"{v:.1f}" if i < 3 else f"{v:+.1f}" for i, v in enumerate(value))])
-    means = [t_interval(column) for column in np.array(values).T]
+    columns = np.array(values).T
     rows.append(
         [
             "mean [95 % t-interval]",
-            *(
-                f"{m:.1f}" if i < 3 else f"{m:+.1f} [{m - h:+.1f}, {m + h:+.1f}]"
-                for i, (m, h) in enumerate(means)
-            ),
+            *(f"{c.mean():.1f}" for c in columns[:3]),
+            *(fmt_diff(c) for c in columns[3:]),
         ]
     )
     header = [

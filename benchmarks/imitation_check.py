@@ -26,24 +26,22 @@ import torch
 from _common import machine_line
 
 from adademo_lerobot.core.tables import table
+from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
+from adademo_lerobot.dataset.metadata import data_files, load_suite_config, read_episode_metadata
 from adademo_lerobot.evaluation.policy import load_policy
 from adademo_lerobot.evaluation.rollouts import BatchedEvaluator
-from adademo_lerobot.suites import suite_config_from_dict
 
 # New initial states: seeds 1000, 1001, ... (collection seeds are 64-bit hashes of the run's seed, never these).
 NEW_STATE_SEEDS = 1000
 
 
-def read_parquets(folder: Path, columns: list[str] | None = None) -> pa.Table:
-    return pa.concat_tables(pq.read_table(p, columns=columns) for p in sorted(folder.glob("*/*.parquet")))
-
-
-def replays_succeed(suite, task: str, episodes: list[dict], actions_of: dict[int, np.ndarray]) -> int:
+def replays_succeed(suite, task: str, replays: list[tuple[int, np.ndarray]]) -> int:
+    """How many of the (initial-state seed, recorded actions) episodes reach success when stepped again."""
     env = suite.make_env(task)
     succeeded = 0
-    for episode in episodes:
-        env.reset(seed=int(episode["adademo/seed"]))
-        for action in actions_of[episode["episode_index"]]:
+    for seed, actions in replays:
+        env.reset(seed=seed)
+        for action in actions:
             _, _, terminated, truncated, info = env.step(action)
             if info.get("is_success"):
                 succeeded += 1
@@ -55,22 +53,26 @@ def replays_succeed(suite, task: str, episodes: list[dict], actions_of: dict[int
 
 
 def check(dataset: Path, policy: str, per_task: int, new_states: int) -> str:
-    suite = suite_config_from_dict(
-        json.loads((dataset / "meta" / "adademo" / "suite.json").read_text())
-    ).build()
-    episodes = [
-        e for e in read_parquets(dataset / "meta" / "episodes").to_pylist() if e["adademo/round"] == 0
+    suite = load_suite_config(dataset).build()
+    episodes = read_episode_metadata(dataset)
+    first = episodes[episodes[COL_ROUND] == 0]
+    frames = pa.concat_tables(pq.read_table(f, columns=["index", "action"]) for f in data_files(dataset))
+    actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)[
+        np.argsort(frames.column("index").to_numpy())
     ]
-    frames = read_parquets(dataset / "data", ["episode_index", "action"])
-    index = np.asarray(frames.column("episode_index").to_pylist())
-    actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)
     evaluator = BatchedEvaluator(suite, load_policy(policy))
     rows = []
     for task in suite.tasks:
-        mine = [e for e in episodes if e["tasks"] == [task]][:per_task]
-        actions_of = {e["episode_index"]: actions[index == e["episode_index"]] for e in mine}
-        replayed = replays_succeed(suite, task, mine, actions_of)
-        trained_on = sum(r.success for r in evaluator.run(task, [int(e["adademo/seed"]) for e in mine]))
+        mine = first[first["task"] == task].head(per_task)
+        seeds = [int(seed) for seed in mine[COL_SEED]]
+        replays = [
+            (seed, actions[start:stop])
+            for seed, start, stop in zip(
+                seeds, mine["dataset_from_index"], mine["dataset_to_index"], strict=True
+            )
+        ]
+        replayed = replays_succeed(suite, task, replays)
+        trained_on = sum(r.success for r in evaluator.run(task, seeds))
         new = sum(r.success for r in evaluator.run(task, [NEW_STATE_SEEDS + i for i in range(new_states)]))
         rows.append(
             [task, len(mine), f"{replayed}/{len(mine)}", f"{trained_on}/{len(mine)}", f"{new}/{new_states}"]
