@@ -7,7 +7,10 @@
   same demonstrations it was trained on: failing there is not generalization, the policy does not reproduce its
   own training data.
 
-A third column runs the policy from new initial states (seeds it was not trained on), for comparison.
+A third column runs the policy from new initial states (seeds it was not trained on), for comparison. A fourth,
+with no policy at all, asks whether the demonstrations can be imitated: how much of their action variance the
+nearest states of the task's other demonstrations explain (near 1: similar states got similar actions; near 0 or
+below: each demonstration acted its own way, and a policy trained on all of them averages them).
 
     python benchmarks/imitation_check.py --run_dir RUN [--round 0] [--episodes 20] [--new_states 20]
     python benchmarks/imitation_check.py --dataset DATASET_ROOT --policy CHECKPOINT/pretrained_model
@@ -24,6 +27,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 from _common import machine_line
+from scipy.spatial import cKDTree
 
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
@@ -52,14 +56,36 @@ def replays_succeed(suite, task: str, replays: list[tuple[int, np.ndarray]]) -> 
     return succeeded
 
 
+def actions_explained_by_state(
+    states: np.ndarray, actions: np.ndarray, episode: np.ndarray, neighbours: int = 5, every: int = 5
+) -> float:
+    """Share of the actions' variance (each dimension standardized) that the mean action of the `neighbours`
+    nearest states (standardized) of *other* episodes explains, over every `every`-th frame: 1 - SSE / SST."""
+    spread = actions.std(axis=0)
+    used = spread > 1e-6  # dimensions the task never moves carry no variance to explain
+    a = (actions[:, used] - actions[:, used].mean(axis=0)) / spread[used]
+    s = (states - states.mean(axis=0)) / (states.std(axis=0) + 1e-6)
+    # enough neighbours that `neighbours` of them lie outside the frame's own episode
+    k = min(len(s), neighbours + int(np.bincount(episode).max()))
+    _, nearest = cKDTree(s).query(s[::every], k=k)
+    sse = sst = 0.0
+    for i, row in zip(range(0, len(s), every), nearest, strict=True):
+        others = row[episode[row] != episode[i]][:neighbours]
+        sse += float(np.sum((a[others].mean(axis=0) - a[i]) ** 2))
+        sst += float(np.sum(a[i] ** 2))
+    return 1.0 - sse / sst
+
+
 def check(dataset: Path, policy: str, per_task: int, new_states: int) -> str:
     suite = load_suite_config(dataset).build()
     episodes = read_episode_metadata(dataset)
     first = episodes[episodes[COL_ROUND] == 0]
-    frames = pa.concat_tables(pq.read_table(f, columns=["index", "action"]) for f in data_files(dataset))
-    actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)[
-        np.argsort(frames.column("index").to_numpy())
-    ]
+    frames = pa.concat_tables(
+        pq.read_table(f, columns=["index", "action", "observation.state"]) for f in data_files(dataset)
+    )
+    order = np.argsort(frames.column("index").to_numpy())
+    actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)[order]
+    states = np.asarray(frames.column("observation.state").to_pylist(), dtype=np.float64)[order]
     evaluator = BatchedEvaluator(suite, load_policy(policy))
     rows = []
     for task in suite.tasks:
@@ -72,14 +98,30 @@ def check(dataset: Path, policy: str, per_task: int, new_states: int) -> str:
             )
         ]
         replayed = replays_succeed(suite, task, replays)
+        own = np.concatenate(
+            [
+                np.arange(start, stop)
+                for start, stop in zip(mine["dataset_from_index"], mine["dataset_to_index"], strict=True)
+            ]
+        )
+        episode = np.repeat(np.arange(len(mine)), mine["dataset_to_index"] - mine["dataset_from_index"])
+        explained = actions_explained_by_state(states[own], actions[own].astype(np.float64), episode)
         trained_on = sum(r.success for r in evaluator.run(task, seeds))
         new = sum(r.success for r in evaluator.run(task, [NEW_STATE_SEEDS + i for i in range(new_states)]))
         rows.append(
-            [task, len(mine), f"{replayed}/{len(mine)}", f"{trained_on}/{len(mine)}", f"{new}/{new_states}"]
+            [
+                task,
+                len(mine),
+                f"{explained:.2f}",
+                f"{replayed}/{len(mine)}",
+                f"{trained_on}/{len(mine)}",
+                f"{new}/{new_states}",
+            ]
         )
     headers = [
         "task",
         "first demonstrations",
+        "their actions explained by other demonstrations' nearest states",
         "replayed, succeed",
         "policy from their initial states",
         "policy from new initial states",
