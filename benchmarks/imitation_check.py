@@ -13,7 +13,7 @@ nearest states of the task's other demonstrations explain (near 1: similar state
 below: each demonstration acted its own way, and a policy trained on all of them averages them).
 
     python benchmarks/imitation_check.py --run_dir RUN [--round 0] [--episodes 20] [--new_states 20]
-    python benchmarks/imitation_check.py --dataset DATASET_ROOT --policy CHECKPOINT/pretrained_model
+    python benchmarks/imitation_check.py --dataset DATASET_ROOT [--policy CHECKPOINT/pretrained_model]
 """
 
 from __future__ import annotations
@@ -76,7 +76,8 @@ def actions_explained_by_state(
     return 1.0 - sse / sst
 
 
-def check(dataset: Path, policy: str, per_task: int, new_states: int) -> str:
+def check(dataset: Path, policy: str | None, per_task: int, new_states: int) -> str:
+    """The table; without a policy, only the columns about the data."""
     suite = load_suite_config(dataset).build()
     episodes = read_episode_metadata(dataset)
     first = episodes[episodes[COL_ROUND] == 0]
@@ -86,7 +87,7 @@ def check(dataset: Path, policy: str, per_task: int, new_states: int) -> str:
     order = np.argsort(frames.column("index").to_numpy())
     actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)[order]
     states = np.asarray(frames.column("observation.state").to_pylist(), dtype=np.float64)[order]
-    evaluator = BatchedEvaluator(suite, load_policy(policy))
+    evaluator = BatchedEvaluator(suite, load_policy(policy)) if policy else None
     rows = []
     for task in suite.tasks:
         mine = first[first["task"] == task].head(per_task)
@@ -106,26 +107,21 @@ def check(dataset: Path, policy: str, per_task: int, new_states: int) -> str:
         )
         episode = np.repeat(np.arange(len(mine)), mine["dataset_to_index"] - mine["dataset_from_index"])
         explained = actions_explained_by_state(states[own], actions[own].astype(np.float64), episode)
-        trained_on = sum(r.success for r in evaluator.run(task, seeds))
-        new = sum(r.success for r in evaluator.run(task, [NEW_STATE_SEEDS + i for i in range(new_states)]))
-        rows.append(
-            [
-                task,
-                len(mine),
-                f"{explained:.2f}",
-                f"{replayed}/{len(mine)}",
-                f"{trained_on}/{len(mine)}",
-                f"{new}/{new_states}",
-            ]
-        )
+        rows.append([task, len(mine), f"{explained:.2f}", f"{replayed}/{len(mine)}"])
+        if evaluator is not None:
+            trained_on = sum(r.success for r in evaluator.run(task, seeds))
+            new = sum(
+                r.success for r in evaluator.run(task, [NEW_STATE_SEEDS + i for i in range(new_states)])
+            )
+            rows[-1] += [f"{trained_on}/{len(mine)}", f"{new}/{new_states}"]
     headers = [
         "task",
         "first demonstrations",
         "their actions explained by other demonstrations' nearest states",
         "replayed, succeed",
-        "policy from their initial states",
-        "policy from new initial states",
     ]
+    if evaluator is not None:
+        headers += ["policy from their initial states", "policy from new initial states"]
     return table(headers, rows)
 
 
@@ -136,17 +132,20 @@ def main() -> None:
         "--round", type=int, default=0, help="--run_dir: whose policy runs (default: round 0)"
     )
     parser.add_argument("--dataset", type=Path, help="instead of --run_dir: a dataset root (adademo's)")
-    parser.add_argument("--policy", help="with --dataset: a checkpoint's pretrained_model folder")
+    parser.add_argument(
+        "--policy",
+        help="with --dataset: a checkpoint's pretrained_model folder (without: the data columns only)",
+    )
     parser.add_argument("--episodes", type=int, default=20, help="first demonstrations per task checked")
     parser.add_argument("--new_states", type=int, default=20, help="new initial states per task")
     args = parser.parse_args()
     if args.run_dir is not None:
         state = json.loads((args.run_dir / "run_state.json").read_text())
         dataset, policy = args.run_dir / "dataset", state["done"][f"train-{args.round}"]["result"]
-    elif args.dataset is not None and args.policy is not None:
+    elif args.dataset is not None:
         dataset, policy = args.dataset, args.policy
     else:
-        parser.error("give --run_dir, or --dataset and --policy")
+        parser.error("give --run_dir, or --dataset (and --policy)")
     torch.set_num_threads(1)  # as the evaluation runs policies
     print(f"{machine_line()}; dataset {dataset}, policy {policy}")
     print(check(dataset, policy, args.episodes, args.new_states))
