@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from adademo_lerobot.collectors import PlannerCollectorConfig, make_collector
-from adademo_lerobot.collectors.planner import smooth_noise
+from adademo_lerobot.collectors.planner import noise_generator, smooth_noise
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites import AdroitSuiteConfig, MetaWorldSuiteConfig, make_suite
 
@@ -93,12 +93,46 @@ def test_planner_demonstrates_from_a_start_and_takes_over_mid_episode_determinis
         ("knot_steps", 0, "--collector.knot_steps must be >= 1"),
         ("threads", 0, "--collector.threads must be >= 1"),
         ("reward", "dense", "--collector.reward must be planning or env"),
+        ("plan_decay", -0.1, r"--collector.plan_decay must be in \[0, 1\)"),
+        ("plan_decay", 1.0, r"--collector.plan_decay must be in \[0, 1\)"),
     ],
 )
 def test_bad_planner_fields_are_refused(field, value, match):
     suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3"))
     with pytest.raises(AdaDemoError, match=match):
         PlannerCollectorConfig(**{field: value}).validate(suite)
+
+
+def test_common_noise_draws_by_step_for_every_state_and_otherwise_by_state():
+    a, b = np.zeros(5), np.arange(5.0)
+
+    def draws(state, step, common):
+        return noise_generator(state, step, common).normal(size=4)
+
+    np.testing.assert_array_equal(draws(a, 3, True), draws(b, 3, True))  # every episode alike at one step
+    assert not np.allclose(draws(a, 3, True), draws(a, 4, True))
+    np.testing.assert_array_equal(draws(b, 3, False), draws(b, 9, False))  # one state, one action
+    assert not np.allclose(draws(a, 3, False), draws(b, 3, False))
+
+
+def test_common_noise_and_plan_decay_still_demonstrate_and_change_the_demonstration():
+    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3"))
+    task = suite.tasks[0]
+    initial = suite.sample_initial_state(task, 1)
+
+    def actions(**fields):
+        collector = make_collector(
+            PlannerCollectorConfig(samples=8, horizon=6, max_attempts=1, **fields), suite
+        )
+        demo = collector.collect(task, initial, 1).demonstration
+        collector.close()
+        assert demo is not None  # reach-v3 is reached either way
+        return np.stack([f["action"] for f in demo.frames])
+
+    common = actions(common_noise=True, plan_decay=0.1)
+    np.testing.assert_array_equal(common, actions(common_noise=True, plan_decay=0.1))  # reproducible
+    default = actions()
+    assert common.shape != default.shape or not np.allclose(common, default)
 
 
 @pytest.fixture(scope="module")

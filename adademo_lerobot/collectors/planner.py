@@ -12,9 +12,11 @@ moves to the reward-weighted mean of the samples, with weights exp((R - max R) /
 It needs only what every suite here with full-state restore has (MetaWorld, Fetch, Adroit): a state to restore
 at any step and a reward (dense rewards plan best: Fetch's is sparse). It acts from any state, so it also takes
 over failed rollouts (`--demo_start=takeover`). Its random draws come from the state it plans from, so the same
-state gives the same action wherever it runs (Ray == local). With `scripted_first` it is the fallback of the suite's
-scripted expert: the planner makes one attempt where the scripted attempts failed (on MetaWorld, from the takeover
-states a failing policy leaves, where the scripted controllers, written for starts, often fail).
+state gives the same action wherever it runs (Ray == local); with `common_noise` they come from the attempt's step,
+the same for every episode, which makes demonstrations from nearby starts agree (for imitation). With
+`scripted_first` it is the fallback of the suite's scripted expert: the planner makes one attempt where the
+scripted attempts failed (on MetaWorld, from the takeover states a failing policy leaves, where the scripted
+controllers, written for starts, often fail).
 """
 
 from __future__ import annotations
@@ -53,6 +55,13 @@ class PlannerCollectorConfig(CollectorConfig):
     noise: float = 0.3
     # MPPI temperature, relative to the spread (std) of the sampled returns: small picks the best sample.
     temperature: float = 0.1
+    # Every episode draws the same noise at the same step (common random numbers), instead of noise drawn from the
+    # state: nearby starts then pick alike samples, so the demonstrations agree more with each other and a policy
+    # can imitate them (Adroit hammer, benchmarks/results/adroit.md). Still one action per state and step.
+    common_noise: bool = False
+    # Share of the plan pulled back to the neutral action (0) before each step's search, in [0, 1): bounds how far
+    # the dimensions the reward barely scores (a hand's fingers) wander from one demonstration to the next.
+    plan_decay: float = 0.0
     # `planning`: the suite's planning reward where it has one (Adroit), else the env's; `env`: the env's own.
     reward: str = "planning"
     # Threads for rollouts in C (Adroit); 1 keeps a planner to one core (Ray workers run one each).
@@ -72,6 +81,8 @@ class PlannerCollectorConfig(CollectorConfig):
             raise AdaDemoError(f"--collector.noise must be > 0, got {self.noise}")
         if not self.temperature > 0:
             raise AdaDemoError(f"--collector.temperature must be > 0, got {self.temperature}")
+        if not 0 <= self.plan_decay < 1:
+            raise AdaDemoError(f"--collector.plan_decay must be in [0, 1), got {self.plan_decay}")
         if self.reward not in ("planning", "env"):
             raise AdaDemoError(f"--collector.reward must be planning or env, got {self.reward!r}")
 
@@ -192,10 +203,12 @@ class PlannerExpert(SimulatedExpertCollector):
 
     def _acting_from(self, task: str, acting) -> Callable[[dict], np.ndarray]:
         plan = self._empty_plan()
+        step = 0
 
         def act(observation: dict) -> np.ndarray:
-            nonlocal plan
-            plan = self.plan(task, acting.get_state(), plan, acting)
+            nonlocal plan, step
+            plan = self.plan(task, acting.get_state(), plan, acting, step=step)
+            step += 1
             action = plan[0].copy()
             plan = np.concatenate([plan[1:], plan[-1:]])  # receding horizon: the rest of the plan, shifted
             return action
@@ -205,10 +218,10 @@ class PlannerExpert(SimulatedExpertCollector):
     def _empty_plan(self) -> np.ndarray:
         return np.zeros((self.config.horizon, self.suite.action_dim))
 
-    def plan(self, task: str, state: np.ndarray, plan: np.ndarray, acting=None) -> np.ndarray:
-        """`plan` improved from `state`: the reward-weighted mean of sequences sampled around it. Given the env
-        `acting` in that state, rollouts in C start from it directly (they leave it as it is, and start from its
-        exact state, the solver's warm start included, which a restore resets)."""
+    def plan(self, task: str, state: np.ndarray, plan: np.ndarray, acting=None, step: int = 0) -> np.ndarray:
+        """`plan` improved from `state`, the attempt's `step`-th: the reward-weighted mean of sequences sampled
+        around it. Given the env `acting` in that state, rollouts in C start from it directly (they leave it as it
+        is, and start from its exact state, the solver's warm start included, which a restore resets)."""
         cfg: PlannerCollectorConfig = self.config
         if acting is not None and hasattr(acting, "batched_rollouts"):
             env = acting
@@ -217,7 +230,9 @@ class PlannerExpert(SimulatedExpertCollector):
             env.reset(options={"state": state})
         returns_of = self._returns_from_here(env)
         used = getattr(env, "used_action_dims", None)  # dims the task ignores stay at the plan's (zero)
-        rng = np.random.default_rng(zlib.crc32(np.ascontiguousarray(state).tobytes()))
+        rng = noise_generator(state, step, cfg.common_noise)
+        if cfg.plan_decay:
+            plan = plan * (1.0 - cfg.plan_decay)
         for _ in range(cfg.iterations):
             noise = smooth_noise(rng, cfg.samples, cfg.horizon, plan.shape[1], cfg.knot_steps, cfg.noise)
             noise[0] = 0.0
@@ -257,6 +272,12 @@ class PlannerExpert(SimulatedExpertCollector):
         for env in self._planning_envs.values():
             env.close()
         self._planning_envs.clear()
+
+
+def noise_generator(state: np.ndarray, step: int, common: bool) -> np.random.Generator:
+    """The planning noise's random draws at one step: from the state planned from (the same state, the same
+    draws, wherever it runs), or with `common` from the step of the attempt alone (every episode alike)."""
+    return np.random.default_rng(step if common else zlib.crc32(np.ascontiguousarray(state).tobytes()))
 
 
 def smooth_noise(
