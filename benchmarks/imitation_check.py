@@ -92,20 +92,17 @@ def check(dataset: Path, policy: str | None, per_task: int, new_states: int) -> 
     for task in suite.tasks:
         mine = first[first["task"] == task].head(per_task)
         seeds = [int(seed) for seed in mine[COL_SEED]]
-        replays = [
-            (seed, actions[start:stop])
-            for seed, start, stop in zip(
-                seeds, mine["dataset_from_index"], mine["dataset_to_index"], strict=True
-            )
+        frame_ranges = [
+            range(start, stop)
+            for start, stop in zip(mine["dataset_from_index"], mine["dataset_to_index"], strict=True)
         ]
-        replayed = replays_succeed(suite, task, replays)
-        own = np.concatenate(
-            [
-                np.arange(start, stop)
-                for start, stop in zip(mine["dataset_from_index"], mine["dataset_to_index"], strict=True)
-            ]
+        replayed = replays_succeed(
+            suite,
+            task,
+            [(seed, actions[f.start : f.stop]) for seed, f in zip(seeds, frame_ranges, strict=True)],
         )
-        episode = np.repeat(np.arange(len(mine)), mine["dataset_to_index"] - mine["dataset_from_index"])
+        own = np.concatenate([np.arange(f.start, f.stop) for f in frame_ranges])
+        episode = np.repeat(np.arange(len(frame_ranges)), [len(f) for f in frame_ranges])
         explained = actions_explained_by_state(states[own], actions[own].astype(np.float64), episode)
         rows.append([task, len(mine), f"{explained:.2f}", f"{replayed}/{len(mine)}"])
         if evaluator is not None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -20,6 +21,20 @@ prefer_loadable_backend()
 # LeRobot's Robot and Teleoperator make a calibration folder under this on creation: not in the user's home.
 os.environ.setdefault("HF_LEROBOT_CALIBRATION", tempfile.mkdtemp(prefix="adademo-tests-calibration-"))
 BIN = Path(sys.executable).parent
+BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
+
+
+def load_benchmark(name: str):
+    """A script of benchmarks/ as a module, loaded afresh: registered in sys.modules (its dataclasses resolve their
+    annotations there, and the scripts that import it find it), with benchmarks/ last on sys.path (the scripts
+    import _common; last, so it shadows nothing)."""
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.append(str(BENCHMARKS))
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 def rendering_works() -> bool:

@@ -3,23 +3,16 @@ adademo-report (adademo_lerobot/core/costs.py) on small hand-computed curves: th
 curves, episodes and the break-even rollout cost c*, the paired differences, their t-intervals and the goal
 verdicts the results files print."""
 
-import importlib.util
 import json
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_benchmark
 
 from adademo_lerobot.core import costs
 
-SPEC = importlib.util.spec_from_file_location(
-    "efficiency_report", Path(__file__).parents[1] / "benchmarks" / "efficiency_report.py"
-)
-report = importlib.util.module_from_spec(SPEC)
-sys.modules[SPEC.name] = report  # its dataclasses resolve their annotations there
-SPEC.loader.exec_module(report)
+report = load_benchmark("efficiency_report")
 
 TASKS = ["a", "b"]
 

@@ -2,26 +2,11 @@
 how taking them off moves its equal-episode reading against Uniform (hand-computed curves, and the committed MT10
 summaries against the report's own reading)."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
+from conftest import BENCHMARKS, load_benchmark
 
-BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
-
-
-def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # its dataclasses resolve their annotations there, its importers find it
-    spec.loader.exec_module(module)
-    return module
-
-
-sys.path.append(str(BENCHMARKS))  # episode_levers imports _common as the scripts do (last: shadows nothing)
-report = load("efficiency_report")
-levers = load("episode_levers")
+report = load_benchmark("efficiency_report")
+levers = load_benchmark("episode_levers")  # imports the efficiency_report just loaded
 
 
 def run(arm: str, success: list[float], rows: dict[str, dict]) -> "report.Run":

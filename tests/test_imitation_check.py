@@ -1,17 +1,10 @@
 """benchmarks/imitation_check.py: the share of the demonstrations' action variance that other demonstrations'
 nearest states explain (the column that says, before any training, whether the data can be imitated)."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
+from conftest import load_benchmark
 
-BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
-sys.path.append(str(BENCHMARKS))  # imitation_check imports _common as the scripts do (last: shadows nothing)
-spec = importlib.util.spec_from_file_location("imitation_check", BENCHMARKS / "imitation_check.py")
-imitation_check = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(imitation_check)
+imitation_check = load_benchmark("imitation_check")
 
 
 def demonstrations(episodes: int = 20, steps: int = 60, seed: int = 0):
