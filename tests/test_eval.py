@@ -4,12 +4,16 @@ import json
 
 import numpy as np
 import pandas as pd
+import pytest
 from conftest import assert_cli_error, run_cli
 
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.seeds import evaluation_seeds
+from adademo_lerobot.dataset.layout import SUITE_FILE
 from adademo_lerobot.evaluation.policy import load_policy
 from adademo_lerobot.evaluation.rollouts import BatchedEvaluator
-from adademo_lerobot.suites import make_suite
+from adademo_lerobot.loop.evaluate import suite_to_evaluate
+from adademo_lerobot.suites import AdroitSuiteConfig, make_suite
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
 
@@ -129,3 +133,19 @@ def test_eval_bad_input(act_run, reach_push_dataset, tmp_path):
     fails(*common, "--suite.obs_type=pixels_state", match="--suite.obs_type=pixels_state contradicts")
     fails(*common, "--suite.type=fetch", match="the dataset's suite is metaworld")
     assert not (tmp_path / "o").exists()
+
+
+def test_eval_reads_task_short_names_in_the_datasets_suite(tmp_path):
+    """`--suite.tasks=hammer` on an Adroit dataset picks AdroitHandHammer-v1, with or without --suite.type (the
+    default type is MetaWorld's: tasks and the step limit alone are read in the dataset's suite)."""
+    stored = AdroitSuiteConfig(tasks="AdroitHandDoor-v1,AdroitHandHammer-v1,AdroitHandPen-v1")
+    (tmp_path / SUITE_FILE).parent.mkdir(parents=True)
+    (tmp_path / SUITE_FILE).write_text(stored.to_json())
+    suite, tasks = suite_to_evaluate(str(tmp_path), AdroitSuiteConfig(tasks="hammer,door"))
+    assert tasks == ["AdroitHandHammer-v1", "AdroitHandDoor-v1"] and suite.type == "adroit"
+    suite, tasks = suite_to_evaluate(str(tmp_path), MetaWorldSuiteConfig(tasks="pen", max_episode_steps=50))
+    assert tasks == ["AdroitHandPen-v1"] and (suite.type, suite.max_episode_steps) == ("adroit", 50)
+    with pytest.raises(AdaDemoError, match="AdroitHandRelocate-v1 not in the dataset's tasks"):
+        suite_to_evaluate(str(tmp_path), AdroitSuiteConfig(tasks="relocate"))
+    with pytest.raises(AdaDemoError, match="--suite.type=metaworld but the dataset's suite is adroit"):
+        suite_to_evaluate(str(tmp_path), MetaWorldSuiteConfig(tasks="pen", obs_type="pixels_state"))

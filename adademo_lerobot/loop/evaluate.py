@@ -64,14 +64,17 @@ def suite_to_evaluate(dataset_root: str | None, flags: SuiteConfig) -> tuple[Sui
     stored_tasks = split_task_list(stored.tasks)
     defaults = type(flags)()
     given = {f.name for f in dataclasses.fields(flags) if getattr(flags, f.name) != getattr(defaults, f.name)}
-    if flags.type != stored.type and (given or flags.type != SuiteConfig.default_choice_name()):
+    # Flags every suite has (tasks, step limit) given without --suite.type are read in the dataset's suite.
+    picks_only = given <= {"tasks", "max_episode_steps"}
+    if flags.type != stored.type and not (picks_only and flags.type == SuiteConfig.default_choice_name()):
         raise AdaDemoError(
             f"--suite.type={flags.type} but the dataset's suite is {stored.type}: drop --suite.type (the suite "
             "comes from the dataset)"
         )
     tasks = stored_tasks
     if "tasks" in given:
-        tasks = split_task_list(flags.tasks)
+        # In the dataset's suite, so that short names (Adroit's `hammer`) and groups (`mt10`) pick its tasks.
+        tasks = split_task_list(dataclasses.replace(stored, tasks=flags.tasks).canonical().tasks)
         unknown = [t for t in tasks if t not in stored_tasks]
         if unknown or not tasks:
             raise AdaDemoError(
