@@ -137,12 +137,18 @@ def main() -> None:
     parser.add_argument("--new_states", type=int, default=20, help="new initial states per task")
     args = parser.parse_args()
     if args.run_dir is not None:
+        if not (args.run_dir / "run_state.json").is_file():
+            parser.error(f"--run_dir {args.run_dir} is not a run folder (no run_state.json)")
         state = json.loads((args.run_dir / "run_state.json").read_text())
+        if f"train-{args.round}" not in state["done"]:
+            parser.error(f"--run_dir {args.run_dir} has not trained round {args.round} yet")
         dataset, policy = args.run_dir / "dataset", state["done"][f"train-{args.round}"]["result"]
     elif args.dataset is not None:
         dataset, policy = args.dataset, args.policy
     else:
         parser.error("give --run_dir, or --dataset (and --policy)")
+    if not (Path(dataset) / "meta" / "info.json").is_file():
+        parser.error(f"{dataset} is not a LeRobot dataset (no meta/info.json)")
     torch.set_num_threads(1)  # as the evaluation runs policies
     print(f"{machine_line()}; dataset {dataset}, policy {policy}")
     print(check(dataset, policy, args.episodes, args.new_states))

@@ -1,6 +1,10 @@
 """benchmarks/imitation_check.py: the share of the demonstrations' action variance that other demonstrations'
 nearest states explain (the column that says, before any training, whether the data can be imitated)."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 from conftest import load_benchmark
 
@@ -36,3 +40,12 @@ def test_neighbours_come_from_other_episodes_only():
     rng, states, episode = demonstrations(episodes=10, steps=200, seed=1)
     own_constant = np.repeat(rng.normal(size=(10, 2)), 200, axis=0)
     assert imitation_check.actions_explained_by_state(states, own_constant, episode) < 0.3
+
+
+def test_a_folder_that_is_not_a_dataset_or_run_is_one_error_line(tmp_path):
+    script = Path(imitation_check.__file__)
+    for flag, says in (("--dataset", "is not a LeRobot dataset"), ("--run_dir", "is not a run folder")):
+        proc = subprocess.run(
+            [sys.executable, str(script), flag, str(tmp_path)], capture_output=True, text=True, timeout=120
+        )
+        assert proc.returncode == 2 and says in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
