@@ -222,7 +222,7 @@ def agrees(doc: str, field: Field) -> bool:
     value = field.default
     if isinstance(value, tuple) and len(value) == 1:  # one per-round value
         value = value[0]
-    if value is None or value is dataclasses.MISSING or (isinstance(value, tuple) and not value):
+    if value is None or value is dataclasses.MISSING or (isinstance(value, tuple | dict) and not value):
         if not literal(doc):  # "-", "required", or the default in words
             return True
         stated = stated_default(field)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from adademo_lerobot.collectors import PlannerCollectorConfig, make_collector
-from adademo_lerobot.collectors.planner import noise_generator, smooth_noise
+from adademo_lerobot.collectors.planner import PlannerTaskSettings, noise_generator, smooth_noise
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites import AdroitSuiteConfig, MetaWorldSuiteConfig, make_suite
 
@@ -133,6 +133,49 @@ def test_common_noise_and_plan_decay_still_demonstrate_and_change_the_demonstrat
     np.testing.assert_array_equal(common, actions(common_noise=True, plan_decay=0.1))  # reproducible
     default = actions()
     assert common.shape != default.shape or not np.allclose(common, default)
+
+
+def test_task_settings_plan_the_named_task_with_its_own_fields_and_the_others_as_before():
+    """reach-v3 given its own noise draws, plan decay and horizon plans as a collector with those fields for every
+    task does; push-v3, not named, as the collector's own fields do (the first planned action from a start)."""
+    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))
+    own = {"reach-v3": PlannerTaskSettings(common_noise=True, plan_decay=0.1, horizon=4)}
+
+    def first_action(task: str, **fields) -> np.ndarray:
+        collector = make_collector(PlannerCollectorConfig(**{"samples": 8, "horizon": 6, **fields}), suite)
+        env = suite.make_env(task)
+        observation, _ = env.reset(options={"initial_state": suite.sample_initial_state(task, 1)})
+        action = collector.expert_first_action(task)(observation, env.unwrapped.get_state())
+        env.close()
+        collector.close()
+        return action
+
+    reach = first_action("reach-v3", task_settings=own)
+    np.testing.assert_array_equal(
+        reach, first_action("reach-v3", common_noise=True, plan_decay=0.1, horizon=4)
+    )
+    assert not np.allclose(reach, first_action("reach-v3"))
+    np.testing.assert_array_equal(first_action("push-v3", task_settings=own), first_action("push-v3"))
+
+
+@pytest.mark.parametrize(
+    ("settings", "match"),
+    [
+        ({"drawer-open-v3": PlannerTaskSettings(noise=0.2)}, "task_settings: drawer-open-v3 is not one of"),
+        (
+            {"reach-v3": PlannerTaskSettings(plan_decay=1.5)},
+            r"task_settings of reach-v3: --collector.plan_decay",
+        ),
+        (
+            {"reach-v3": PlannerTaskSettings(samples=0)},
+            "task_settings of reach-v3: --collector.samples must be",
+        ),
+    ],
+)
+def test_bad_task_settings_are_refused(settings, match):
+    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))
+    with pytest.raises(AdaDemoError, match=match):
+        PlannerCollectorConfig(task_settings=settings).validate(suite)
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,6 +33,21 @@ from adademo_lerobot.collectors.scripted import SCRIPTED_EXPERTS
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.base import TaskSuite, cached_for_task, split_task_list
+
+
+@dataclass
+class PlannerTaskSettings:
+    """One task's own values of the planner's search fields (None: the collector's); the other fields are the
+    collector's for every task."""
+
+    samples: int | None = None
+    horizon: int | None = None
+    knot_steps: int | None = None
+    iterations: int | None = None
+    noise: float | None = None
+    temperature: float | None = None
+    common_noise: bool | None = None
+    plan_decay: float | None = None
 
 
 @CollectorConfig.register_subclass("planner")
@@ -72,6 +87,11 @@ class PlannerCollectorConfig(CollectorConfig):
     # The suite's scripted expert makes each demonstration's attempts first; where they all fail, the planner
     # makes one attempt more from the same start, a takeover state included (MetaWorld's corrections).
     scripted_first: bool = False
+    # Search fields set per task, by task name: in a recipe `task_settings: {hammer: {common_noise: true}}`, on
+    # the command line `--collector.task_settings='{"hammer": {"common_noise": true}}'`; the tasks not named plan
+    # with the fields above (Adroit: hammer's demonstrations need common noise to be imitable, pen's cost three
+    # times as much with it and stay unimitable: benchmarks/results/adroit.md).
+    task_settings: dict[str, PlannerTaskSettings] = field(default_factory=dict)
 
     def check_fields(self) -> None:
         for name in ("samples", "horizon", "iterations", "knot_steps", "threads"):
@@ -85,6 +105,21 @@ class PlannerCollectorConfig(CollectorConfig):
             raise AdaDemoError(f"--collector.plan_decay must be in [0, 1), got {self.plan_decay}")
         if self.reward not in ("planning", "env"):
             raise AdaDemoError(f"--collector.reward must be planning or env, got {self.reward!r}")
+        for task in self.task_settings:
+            try:
+                self.for_task(task).check_fields()
+            except AdaDemoError as error:
+                raise AdaDemoError(f"--collector.task_settings of {task}: {error}") from None
+
+    def for_task(self, task: str) -> PlannerCollectorConfig:
+        """The config a task plans with: the collector's, with that task's `task_settings` over it."""
+        own = self.task_settings.get(task)
+        if own is None:
+            return self
+        changed = {
+            f.name: getattr(own, f.name) for f in dataclasses.fields(own) if getattr(own, f.name) is not None
+        }
+        return dataclasses.replace(self, task_settings={}, **changed)
 
     def build(self, suite: TaskSuite) -> PlannerExpert:
         return PlannerExpert(suite, self)
@@ -131,6 +166,22 @@ class PlannerExpert(SimulatedExpertCollector):
         self._scripted_alone = set(alone)
         self._scripted = self._scripted_expert(suite, config, alone)
         self._planning_after_scripted = False  # scripted_first: set while the planner makes its one attempt
+        self._task_configs = self._configs_by_task(suite, config)
+
+    @staticmethod
+    def _configs_by_task(
+        suite: TaskSuite, config: PlannerCollectorConfig
+    ) -> dict[str, PlannerCollectorConfig]:
+        """Each task's config (`task_settings` by the suite's task names, refused in one line if not its tasks)."""
+        configs = dict.fromkeys(suite.tasks, config)
+        for name in config.task_settings:
+            task = suite.canonical_task_names([name])
+            if len(task) != 1 or task[0] not in suite.tasks:
+                raise AdaDemoError(
+                    f"--collector.task_settings: {name} is not one of this run's tasks ({', '.join(suite.tasks)})"
+                )
+            configs[task[0]] = config.for_task(name)
+        return configs
 
     @staticmethod
     def _scripted_task_names(suite: TaskSuite, config: PlannerCollectorConfig) -> list[str]:
@@ -197,12 +248,12 @@ class PlannerExpert(SimulatedExpertCollector):
     def expert_first_action(self, task: str) -> Callable[[dict, np.ndarray], np.ndarray]:
         if self.config.scripted_first:  # the disagreement rule asks the expert that acts first
             return self._scripted.expert_first_action(task)
-        return lambda observation, state: self.plan(task, np.asarray(state, np.float64), self._empty_plan())[
-            0
-        ]
+        return lambda observation, state: self.plan(
+            task, np.asarray(state, np.float64), self._empty_plan(task)
+        )[0]
 
     def _acting_from(self, task: str, acting) -> Callable[[dict], np.ndarray]:
-        plan = self._empty_plan()
+        plan = self._empty_plan(task)
         step = 0
 
         def act(observation: dict) -> np.ndarray:
@@ -215,14 +266,14 @@ class PlannerExpert(SimulatedExpertCollector):
 
         return act
 
-    def _empty_plan(self) -> np.ndarray:
-        return np.zeros((self.config.horizon, self.suite.action_dim))
+    def _empty_plan(self, task: str) -> np.ndarray:
+        return np.zeros((self._task_configs[task].horizon, self.suite.action_dim))
 
     def plan(self, task: str, state: np.ndarray, plan: np.ndarray, acting=None, step: int = 0) -> np.ndarray:
         """`plan` improved from `state`, the attempt's `step`-th: the reward-weighted mean of sequences sampled
         around it. Given the env `acting` in that state, rollouts in C start from it directly (they leave it as it
         is, and start from its exact state, the solver's warm start included, which a restore resets)."""
-        cfg: PlannerCollectorConfig = self.config
+        cfg = self._task_configs[task]
         if acting is not None and hasattr(acting, "batched_rollouts"):
             env = acting
         else:
