@@ -465,8 +465,8 @@ TITLES = {
     "hard8_cost": "The hard 8 of MetaWorld, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
     # The paper's Adroit table (`recipes/adroit_table.yaml`): the planner for hammer and pen, scripted door/relocate.
     "adroit": "Adroit (door, hammer, pen, relocate): Uniform, AdaDemo, budgeted, costed_split",
-    # The same with hammer and pen planned with common noise (`recipes/adroit_table_common_noise.yaml`).
-    "adroit_common_noise": "Adroit, hammer and pen planned with common noise: Uniform, AdaDemo, budgeted, costed_split",
+    # The same with hammer planned with common noise (`recipes/adroit_table_common_noise.yaml`).
+    "adroit_common_noise": "Adroit, hammer planned with common noise: Uniform, AdaDemo, budgeted, costed_split",
 }
 TAKEOVER_ARMS = {
     "budgeted_takeover",

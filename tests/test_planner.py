@@ -161,7 +161,10 @@ def test_task_settings_plan_the_named_task_with_its_own_fields_and_the_others_as
 @pytest.mark.parametrize(
     ("settings", "match"),
     [
-        ({"drawer-open-v3": PlannerTaskSettings(noise=0.2)}, "task_settings: drawer-open-v3 is not one of"),
+        (
+            {"drawer-open-v3": PlannerTaskSettings(noise=0.2)},
+            "task_settings: drawer-open-v3 not among this run's tasks",
+        ),
         (
             {"reach-v3": PlannerTaskSettings(plan_decay=1.5)},
             r"task_settings of reach-v3: --collector.plan_decay",

@@ -172,28 +172,16 @@ class PlannerExpert(SimulatedExpertCollector):
     def _configs_by_task(
         suite: TaskSuite, config: PlannerCollectorConfig
     ) -> dict[str, PlannerCollectorConfig]:
-        """Each task's config (`task_settings` by the suite's task names, refused in one line if not its tasks)."""
+        """Each task's config: the collector's, or that of the `task_settings` entry naming it."""
         configs = dict.fromkeys(suite.tasks, config)
         for name in config.task_settings:
-            task = suite.canonical_task_names([name])
-            if len(task) != 1 or task[0] not in suite.tasks:
-                raise AdaDemoError(
-                    f"--collector.task_settings: {name} is not one of this run's tasks ({', '.join(suite.tasks)})"
-                )
-            configs[task[0]] = config.for_task(name)
+            for task in run_task_names(suite, "task_settings", [name]):
+                configs[task] = config.for_task(name)
         return configs
 
     @staticmethod
     def _scripted_task_names(suite: TaskSuite, config: PlannerCollectorConfig) -> list[str]:
-        """`--collector.scripted_tasks` by the suite's task names, refused in one line if not among its tasks."""
-        names = suite.canonical_task_names(split_task_list(config.scripted_tasks or ""))
-        unknown = [t for t in names if t not in suite.tasks]
-        if unknown:
-            raise AdaDemoError(
-                f"--collector.scripted_tasks: {', '.join(unknown)} not among this run's tasks "
-                f"({', '.join(suite.tasks)})"
-            )
-        return names
+        return run_task_names(suite, "scripted_tasks", split_task_list(config.scripted_tasks or ""))
 
     @staticmethod
     def _scripted_expert(
@@ -323,6 +311,17 @@ class PlannerExpert(SimulatedExpertCollector):
         for env in self._planning_envs.values():
             env.close()
         self._planning_envs.clear()
+
+
+def run_task_names(suite: TaskSuite, flag: str, names: list[str]) -> list[str]:
+    """`--collector.<flag>`'s task names as the suite's task ids, refused in one line if not among its tasks."""
+    tasks = suite.canonical_task_names(names)
+    unknown = [t for t in tasks if t not in suite.tasks]
+    if unknown:
+        raise AdaDemoError(
+            f"--collector.{flag}: {', '.join(unknown)} not among this run's tasks ({', '.join(suite.tasks)})"
+        )
+    return tasks
 
 
 def noise_generator(state: np.ndarray, step: int, common: bool) -> np.random.Generator:
