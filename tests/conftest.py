@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -19,7 +20,11 @@ from adademo_lerobot.core.gl import prefer_loadable_backend  # noqa: E402
 
 prefer_loadable_backend()
 # LeRobot's Robot and Teleoperator make a calibration folder under this on creation: not in the user's home.
-os.environ.setdefault("HF_LEROBOT_CALIBRATION", tempfile.mkdtemp(prefix="adademo-tests-calibration-"))
+# Removed when the session ends (every pytest process, xdist workers included, makes its own).
+_CALIBRATION_DIR = None
+if "HF_LEROBOT_CALIBRATION" not in os.environ:
+    _CALIBRATION_DIR = tempfile.mkdtemp(prefix="adademo-tests-calibration-")
+    os.environ["HF_LEROBOT_CALIBRATION"] = _CALIBRATION_DIR
 BIN = Path(sys.executable).parent
 BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
 
@@ -131,6 +136,8 @@ def command_server() -> CommandServer | None:
 def pytest_sessionfinish(session, exitstatus):
     if _SERVER is not None:
         _SERVER.close()
+    if _CALIBRATION_DIR is not None:
+        shutil.rmtree(_CALIBRATION_DIR, ignore_errors=True)
 
 
 def run_cli(command: str, *args: str, check: bool = True, timeout: int = 900) -> subprocess.CompletedProcess:
