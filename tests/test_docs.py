@@ -67,3 +67,11 @@ def test_no_path_outside_the_repository(page):
     outside += MACHINE_PATH.findall(text)
     outside += [f"~/{p}" for p in HOME_PATH.findall(text) if not p.startswith(HOME_EXAMPLES)]
     assert not outside, f"{page_id(page)} refers to paths outside the repository: {', '.join(outside)}"
+
+
+def test_every_recipe_and_preset_is_listed():
+    """docs/recipes.md has a row for each file of recipes/ and policies/: a new user finds them there."""
+    text = (ROOT / "docs" / "recipes.md").read_text()
+    files = [*(ROOT / "recipes").glob("*.yaml"), *(ROOT / "policies").glob("*.yaml")]
+    unlisted = [f"{f.parent.name}/{f.name}" for f in files if f"(../{f.parent.name}/{f.name})" not in text]
+    assert files and not unlisted, f"docs/recipes.md lists no row for {', '.join(sorted(unlisted))}"
