@@ -75,3 +75,11 @@ def test_every_recipe_and_preset_is_listed():
     files = [*(ROOT / "recipes").glob("*.yaml"), *(ROOT / "policies").glob("*.yaml")]
     unlisted = [f"{f.parent.name}/{f.name}" for f in files if f"(../{f.parent.name}/{f.name})" not in text]
     assert files and not unlisted, f"docs/recipes.md lists no row for {', '.join(sorted(unlisted))}"
+
+
+def test_every_benchmark_script_is_listed():
+    """benchmarks/README.md's table names each script of benchmarks/ (a helper module starts with `_`)."""
+    text = (ROOT / "benchmarks" / "README.md").read_text()
+    scripts = [p.name for p in (ROOT / "benchmarks").glob("*.py") if not p.name.startswith("_")]
+    unlisted = [name for name in scripts if f"`{name}" not in text]
+    assert scripts and not unlisted, f"benchmarks/README.md names no {', '.join(sorted(unlisted))}"
