@@ -10,7 +10,8 @@
 A third column runs the policy from new initial states (seeds it was not trained on), for comparison. A fourth,
 with no policy at all, asks whether the demonstrations can be imitated: how much of their action variance the
 nearest states of the task's other demonstrations explain (near 1: similar states got similar actions; near 0 or
-below: each demonstration acted its own way, and a policy trained on all of them averages them).
+below: each demonstration acted its own way, and a policy trained on all of them averages them); `adademo-report`
+shows the same score for every run (`adademo_lerobot/loop/imitability.py`).
 
     python benchmarks/imitation_check.py --run_dir RUN [--round 0] [--episodes 20] [--new_states 20]
     python benchmarks/imitation_check.py --dataset DATASET_ROOT [--policy CHECKPOINT/pretrained_model]
@@ -23,17 +24,15 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 import torch
 from _common import machine_line
-from scipy.spatial import cKDTree
 
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
-from adademo_lerobot.dataset.metadata import data_files, load_suite_config, read_episode_metadata
+from adademo_lerobot.dataset.metadata import load_suite_config, read_episode_metadata
 from adademo_lerobot.evaluation.policy import load_policy
 from adademo_lerobot.evaluation.rollouts import BatchedEvaluator
+from adademo_lerobot.loop.imitability import agreement_of, read_actions_and_states
 
 # New initial states: seeds 1000, 1001, ... (collection seeds are 64-bit hashes of the run's seed, never these).
 NEW_STATE_SEEDS = 1000
@@ -56,37 +55,12 @@ def replays_succeed(suite, task: str, replays: list[tuple[int, np.ndarray]]) -> 
     return succeeded
 
 
-def actions_explained_by_state(
-    states: np.ndarray, actions: np.ndarray, episode: np.ndarray, neighbours: int = 5, every: int = 5
-) -> float:
-    """Share of the actions' variance (each dimension standardized) that the mean action of the `neighbours`
-    nearest states (standardized) of *other* episodes explains, over every `every`-th frame: 1 - SSE / SST."""
-    spread = actions.std(axis=0)
-    used = spread > 1e-6  # dimensions the task never moves carry no variance to explain
-    a = (actions[:, used] - actions[:, used].mean(axis=0)) / spread[used]
-    s = (states - states.mean(axis=0)) / (states.std(axis=0) + 1e-6)
-    # enough neighbours that `neighbours` of them lie outside the frame's own episode
-    k = min(len(s), neighbours + int(np.bincount(episode).max()))
-    _, nearest = cKDTree(s).query(s[::every], k=k)
-    sse = sst = 0.0
-    for i, row in zip(range(0, len(s), every), nearest, strict=True):
-        others = row[episode[row] != episode[i]][:neighbours]
-        sse += float(np.sum((a[others].mean(axis=0) - a[i]) ** 2))
-        sst += float(np.sum(a[i] ** 2))
-    return 1.0 - sse / sst
-
-
 def check(dataset: Path, policy: str | None, per_task: int, new_states: int) -> str:
     """The table; without a policy, only the columns about the data."""
     suite = load_suite_config(dataset).build()
     episodes = read_episode_metadata(dataset)
     first = episodes[episodes[COL_ROUND] == 0]
-    frames = pa.concat_tables(
-        pq.read_table(f, columns=["index", "action", "observation.state"]) for f in data_files(dataset)
-    )
-    order = np.argsort(frames.column("index").to_numpy())
-    actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)[order]
-    states = np.asarray(frames.column("observation.state").to_pylist(), dtype=np.float64)[order]
+    actions, states = read_actions_and_states(dataset)
     evaluator = BatchedEvaluator(suite, load_policy(policy)) if policy else None
     rows = []
     for task in suite.tasks:
@@ -101,10 +75,9 @@ def check(dataset: Path, policy: str | None, per_task: int, new_states: int) -> 
             task,
             [(seed, actions[f.start : f.stop]) for seed, f in zip(seeds, frame_ranges, strict=True)],
         )
-        own = np.concatenate([np.arange(f.start, f.stop) for f in frame_ranges])
-        episode = np.repeat(np.arange(len(frame_ranges)), [len(f) for f in frame_ranges])
-        explained = actions_explained_by_state(states[own], actions[own].astype(np.float64), episode)
-        rows.append([task, len(mine), f"{explained:.2f}", f"{replayed}/{len(mine)}"])
+        explained = agreement_of(actions, states, frame_ranges)
+        shown = "-" if explained is None else f"{explained:.2f}"
+        rows.append([task, len(mine), shown, f"{replayed}/{len(mine)}"])
         if evaluator is not None:
             trained_on = sum(r.success for r in evaluator.run(task, seeds))
             new = sum(

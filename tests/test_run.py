@@ -42,6 +42,9 @@ def test_tiny_recipe_end_to_end_with_report(tmp_path):
     report = (run_dir / "report" / "report.md").read_text()
     assert "round 0: SR % (demos)" in report and "round 1: SR % (demos)" in report and "reach-v3" in report
     assert "| 1 | adademo |" in report  # the ledger's round
+    # Can its demonstrations be imitated? 4 a task are too few to score, and the report says so per task.
+    assert "Can a policy imitate these demonstrations?" in report
+    assert "| reach-v3 | 4 | - | too few demonstrations" in report and "| push-v3 | 4 | - | too few" in report
     for png in ("success_vs_demos.png", "eval_cost.png", "allocation_adademo.png", "success_adademo.png"):
         assert (run_dir / "report" / png).read_bytes()[:8] == PNG
 

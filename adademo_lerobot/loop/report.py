@@ -3,6 +3,8 @@
 - per-task success and demos per round (Tables I/II and the appendix tables),
 - average success vs average demos per task, one curve per run (Fig. 1),
 - demo allocation per task per round, and the evaluation cost from the ledger;
+- whether each task's failures concentrate in a region of initial states, and whether its demonstrations can be
+  imitated at all (a score from the data alone);
 - what each round cost per task (demonstrations, corrections, expert frames, evaluation episodes and steps) and
   success against each of these, added over the rounds (a person on a robot pays in expert time and episodes,
   not in demonstrations: `costs.py`), and, against a Uniform run (`--compare_to`), the break-even rollout
@@ -225,6 +227,27 @@ def failure_lines(run: RunResults, out_dir: Path) -> list[str]:
     ]
 
 
+def imitability_lines(run: RunResults) -> list[str]:
+    """Can the policy imitate each task's demonstrations? A score from the data alone (`imitability.py`)."""
+    from adademo_lerobot.loop.imitability import AGREE, DEMONSTRATIONS, DISAGREE, demonstration_agreement
+
+    results = demonstration_agreement(run.dataset_root, run.tasks)
+    if not results:
+        return []
+    rows = [
+        [a.task, a.demonstrations, "-" if a.score is None else f"{a.score:.2f}", a.reading] for a in results
+    ]
+    return [
+        "Can a policy imitate these demonstrations? Per task, from its first "
+        f"{DEMONSTRATIONS} demonstrations and no policy: the share of their action variance that the mean action "
+        "at the 5 nearest states of the task's other demonstrations explains (1: similar states got similar "
+        f"actions; about -0.2: unrelated actions; below {DISAGREE}: they disagree; from {AGREE}: consistent):",
+        "",
+        table(["task", "demonstrations", "score", "reading"], rows, aligned=False),
+        "",
+    ]
+
+
 def allocation_lines(ledger: pd.DataFrame) -> list[str]:
     """Per round and task, what was planned and what was done, and (budgeted) the success estimate before and
     after the round's evaluations."""
@@ -292,6 +315,7 @@ def write_report(run_dirs: list[Path], out_dir: Path, uniform: RunResults | None
             f"![allocation](allocation_{run.name}.png) ![per-task success](success_{run.name}.png)",
             "",
             *failure_lines(run, out_dir),
+            *imitability_lines(run),
             *(
                 [*person_lines(run.dataset_root), ""]
                 if i == 0 and has_interventions(run.dataset_root)
