@@ -2,9 +2,13 @@
 states of its other demonstrations explain, which `adademo-report` reads as "can a policy imitate these?"."""
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from conftest import run_cli
 
+from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.dataset.metadata import data_files
 from adademo_lerobot.loop.imitability import (
     AGREE,
     DISAGREE,
@@ -13,6 +17,7 @@ from adademo_lerobot.loop.imitability import (
     agreement_of,
     agreement_reading,
     demonstration_agreement,
+    disagreement_notes,
 )
 
 
@@ -75,11 +80,13 @@ def test_a_real_dataset_scored_per_task_from_its_first_demonstrations(tmp_path):
     """Scripted reach-v3 and push-v3 demonstrations collected as a user would: both read as not disagreeing (the
     scripted experts are consistent), and a task with fewer than MIN_DEMONSTRATIONS has no score."""
     root = tmp_path / "demo"
-    run_cli(
+    collect = (
         "adademo-collect", "--suite.type=metaworld", "--suite.tasks=reach-v3,push-v3",
-        f"--episodes_per_task={MIN_DEMONSTRATIONS}", "--dataset.repo_id=local/demo", f"--dataset.root={root}",
-        "--seed=0",
+        "--dataset.repo_id=local/demo", f"--dataset.root={root}", "--seed=0",
     )  # fmt: skip
+    first = run_cli(*collect, f"--episodes_per_task={MIN_DEMONSTRATIONS}")
+    assert "note:" not in first.stdout
+    assert disagreement_notes(root, ["reach-v3", "push-v3"]) == []
     scored = demonstration_agreement(root, ["reach-v3", "push-v3"])
     assert [(a.task, a.demonstrations) for a in scored] == [("reach-v3", 10), ("push-v3", 10)]
     for a in scored:
@@ -87,3 +94,34 @@ def test_a_real_dataset_scored_per_task_from_its_first_demonstrations(tmp_path):
     # Only the first demonstrations count: 9 of each are too few, however many the dataset has.
     for a in demonstration_agreement(root, ["reach-v3", "push-v3"], per_task=MIN_DEMONSTRATIONS - 1):
         assert a.demonstrations == MIN_DEMONSTRATIONS - 1 and a.score is None and "too few" in a.reading
+    # The same files with every action drawn at random: each demonstration acts its own way, and the note says so.
+    rng = np.random.default_rng(0)
+    for path in data_files(root):
+        frames = pq.read_table(path)
+        noise = rng.uniform(-1, 1, size=(len(frames), len(frames.column("action")[0])))
+        column = frames.schema.get_field_index("action")
+        actions = pa.FixedSizeListArray.from_arrays(
+            pa.array(noise.astype(np.float32).ravel()), noise.shape[1]
+        )
+        pq.write_table(frames.set_column(column, "action", actions), path)
+    (reach, push) = demonstration_agreement(root, ["reach-v3", "push-v3"])
+    assert reach.score < DISAGREE and push.score < DISAGREE
+    notes = disagreement_notes(root, ["reach-v3", "push-v3"])
+    assert [n.split("'")[0] for n in notes] == ["note: reach-v3", "note: push-v3"]
+    assert all("disagree with each other" in n and "more consistent expert" in n for n in notes)
+    # adademo-collect says it after a collection (here one more demonstration a task, added to these files).
+    more = run_cli(*collect, f"--episodes_per_task={MIN_DEMONSTRATIONS + 1}", "--resume=true")
+    assert (
+        "note: reach-v3's first 11 demonstrations disagree" in more.stdout
+        and "note: push-v3's" in more.stdout
+    )
+    # Files whose actions cannot be read as rows of numbers (lists of different lengths): the score says so in one
+    # line, and a collection's note does not fail the command.
+    for path in data_files(root):
+        frames = pq.read_table(path)
+        ragged = pa.array([[0.0] * (1 + i % 2) for i in range(len(frames))], pa.list_(pa.float32()))
+        pq.write_table(frames.set_column(frames.schema.get_field_index("action"), "action", ragged), path)
+    with pytest.raises(AdaDemoError, match="cannot be scored"):
+        demonstration_agreement(root, ["reach-v3"])
+    (note,) = disagreement_notes(root, ["reach-v3", "push-v3"])
+    assert note.startswith("note: the actions and states of") and "cannot be scored" in note

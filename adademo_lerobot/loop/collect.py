@@ -17,6 +17,7 @@ from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.metadata import check_same_suite, has_dataset, load_suite_config
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import ExecutionArgs, Executor, make_executor
+from adademo_lerobot.loop.imitability import disagreement_notes
 from adademo_lerobot.strategies.round_context import RoundContext
 from adademo_lerobot.suites import TaskSuite, make_suite
 
@@ -83,7 +84,9 @@ def collect_fresh(
     return {r.task: r for r in records if r.task in demos_per_task}
 
 
-def format_collection_table(records: dict[str, TaskRoundRecord]) -> str:
+def format_collection_table(records: dict[str, TaskRoundRecord], root: Path) -> str:
+    """The collection's table per task, with a note for a task short of demonstrations and for one whose
+    demonstrations (in the dataset at `root`) disagree with each other."""
     rows = [
         (r.task, f"{r.demos_added}/{r.demos_per_task}", r.expert_failures, r.collection_env_steps)
         for r in records.values()
@@ -95,6 +98,8 @@ def format_collection_table(records: dict[str, TaskRoundRecord]) -> str:
                 f"note: {r.task} has {r.demos_added} of {r.demos_per_task} demos: the expert failed on "
                 f"{r.expert_failures} initial states (after all attempts); raise --collector.max_attempts or accept fewer"
             )
+    if has_dataset(root):
+        lines += disagreement_notes(root, list(records))
     return "\n".join(lines)
 
 
@@ -149,6 +154,6 @@ def run_collect(cfg) -> dict[str, TaskRoundRecord]:
             )
         finally:
             executor.close()
-        print(format_collection_table(summaries))
+        print(format_collection_table(summaries, root))
         print(f"dataset: {root} ({time.perf_counter() - start:.1f} s)")
     return summaries

@@ -18,7 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.layout import COL_SOURCE, POLICY_SOURCE
 from adademo_lerobot.dataset.metadata import data_files, read_episode_metadata
@@ -69,16 +71,23 @@ def actions_explained_by_state(
 
 def read_actions_and_states(root: Path) -> tuple[np.ndarray, np.ndarray]:
     """Every frame's action and `observation.state`, in the order of the dataset's global frame index."""
-    import pyarrow as pa
     import pyarrow.parquet as pq
 
-    frames = pa.concat_tables(
-        pq.read_table(f, columns=["index", "action", "observation.state"]) for f in data_files(root)
-    )
-    order = np.argsort(frames.column("index").to_numpy())
-    actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)[order]
-    states = np.asarray(frames.column("observation.state").to_pylist(), dtype=np.float64)[order]
-    return actions, states
+    def matrix(frames, name: str, dtype) -> np.ndarray:  # a list column as rows, no Python object per value
+        column = frames.column(name).combine_chunks()
+        values = column.flatten() if hasattr(column, "flatten") else column  # a number per frame: one column
+        return values.to_numpy(zero_copy_only=False).reshape(len(column), -1).astype(dtype)
+
+    index, actions, states = [], [], []
+    for path in data_files(
+        root
+    ):  # file by file: files may type a list column differently (fixed size or not)
+        frames = pq.read_table(path, columns=["index", "action", "observation.state"])
+        index.append(frames.column("index").to_numpy())
+        actions.append(matrix(frames, "action", np.float32))
+        states.append(matrix(frames, "observation.state", np.float64))
+    order = np.argsort(np.concatenate(index))
+    return np.concatenate(actions)[order], np.concatenate(states)[order]
 
 
 def agreement_of(actions: np.ndarray, states: np.ndarray, frame_ranges: list[range]) -> float | None:
@@ -112,7 +121,10 @@ def demonstration_agreement(root: Path, tasks: list[str], per_task: int = DEMONS
         return []
     episodes = read_episode_metadata(root)  # in episode order
     episodes = episodes[episodes[COL_SOURCE] != POLICY_SOURCE]
-    actions, states = read_actions_and_states(root)
+    try:
+        actions, states = read_actions_and_states(root)
+    except (pa.ArrowException, ValueError) as err:  # e.g. an action that is not a list of numbers
+        raise AdaDemoError(f"the actions and states of {root} cannot be scored ({err})") from None
     results = []
     for task in tasks:
         mine = episodes[episodes["task"] == task].head(per_task)
@@ -122,3 +134,19 @@ def demonstration_agreement(root: Path, tasks: list[str], per_task: int = DEMONS
         score = agreement_of(actions, states, ranges) if len(ranges) >= MIN_DEMONSTRATIONS else None
         results.append(Agreement(task, len(ranges), score, agreement_reading(score)))
     return results
+
+
+def disagreement_notes(root: Path, tasks: list[str]) -> list[str]:
+    """A `note:` line for each task whose first demonstrations disagree with each other (printed after a
+    collection: before a strategy spends its budget on a task a policy may not learn)."""
+    try:
+        scored = demonstration_agreement(root, tasks)
+    except AdaDemoError as err:  # a note is advice: it never fails the collection it follows
+        return [f"note: {err}"]
+    return [
+        f"note: {a.task}'s first {a.demonstrations} demonstrations disagree with each other (imitability score "
+        f"{a.score:.2f}, below {DISAGREE}): a policy averages them, and more of the same are unlikely to help; "
+        "give this task a more consistent expert (docs/commands/report.md)"
+        for a in scored
+        if a.score is not None and a.score < DISAGREE
+    ]

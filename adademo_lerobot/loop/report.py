@@ -231,7 +231,10 @@ def imitability_lines(run: RunResults) -> list[str]:
     """Can the policy imitate each task's demonstrations? A score from the data alone (`imitability.py`)."""
     from adademo_lerobot.loop.imitability import AGREE, DEMONSTRATIONS, DISAGREE, demonstration_agreement
 
-    results = demonstration_agreement(run.dataset_root, run.tasks)
+    try:
+        results = demonstration_agreement(run.dataset_root, run.tasks)
+    except AdaDemoError as err:  # the rest of the report stands without it
+        return [f"Can a policy imitate these demonstrations? Not scored: {err}.", ""]
     if not results:
         return []
     rows = [

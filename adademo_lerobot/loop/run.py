@@ -270,7 +270,7 @@ def collect_initial(cfg: RunConfig, suite, episodes: Episodes, dataset_root: Pat
     records = collect_initial_demos(
         suite, dataset, cfg.initial_demos_per_task, cfg.seed, cfg.collector, episodes.get(), cfg.commit_every
     )
-    print(format_collection_table(records))
+    print(format_collection_table(records, dataset_root))
     return {t: r.demos_added for t, r in records.items()}
 
 
