@@ -86,8 +86,12 @@ def test_a_real_dataset_scored_per_task_from_its_first_demonstrations(tmp_path):
     )  # fmt: skip
     first = run_cli(*collect, f"--episodes_per_task={MIN_DEMONSTRATIONS}")
     assert "note:" not in first.stdout
-    assert disagreement_notes(root, ["reach-v3", "push-v3"]) == []
     scored = demonstration_agreement(root, ["reach-v3", "push-v3"])
+    assert disagreement_notes(root, ["reach-v3", "push-v3"]) == []
+    # The same table for a dataset without a run folder (e.g. recorded on a robot), beside the person's work.
+    shown = run_cli("adademo-report", f"--dataset_root={root}").stdout
+    assert "Can a policy imitate these demonstrations?" in shown
+    assert all(f"| {a.task} | 10 | {a.score:.2f} | similar states" in shown for a in scored)
     assert [(a.task, a.demonstrations) for a in scored] == [("reach-v3", 10), ("push-v3", 10)]
     for a in scored:
         assert a.score is not None and a.score >= DISAGREE and "disagree" not in a.reading, a

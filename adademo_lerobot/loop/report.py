@@ -227,12 +227,12 @@ def failure_lines(run: RunResults, out_dir: Path) -> list[str]:
     ]
 
 
-def imitability_lines(run: RunResults) -> list[str]:
-    """Can the policy imitate each task's demonstrations? A score from the data alone (`imitability.py`)."""
+def imitability_lines(root: Path, tasks: list[str]) -> list[str]:
+    """Can a policy imitate each task's demonstrations? A score from the data alone (`imitability.py`)."""
     from adademo_lerobot.loop.imitability import AGREE, DEMONSTRATIONS, DISAGREE, demonstration_agreement
 
     try:
-        results = demonstration_agreement(run.dataset_root, run.tasks)
+        results = demonstration_agreement(root, tasks)
     except AdaDemoError as err:  # the rest of the report stands without it
         return [f"Can a policy imitate these demonstrations? Not scored: {err}.", ""]
     if not results:
@@ -318,7 +318,7 @@ def write_report(run_dirs: list[Path], out_dir: Path, uniform: RunResults | None
             f"![allocation](allocation_{run.name}.png) ![per-task success](success_{run.name}.png)",
             "",
             *failure_lines(run, out_dir),
-            *imitability_lines(run),
+            *imitability_lines(run.dataset_root, run.tasks),
             *(
                 [*person_lines(run.dataset_root), ""]
                 if i == 0 and has_interventions(run.dataset_root)
@@ -332,10 +332,12 @@ def write_report(run_dirs: list[Path], out_dir: Path, uniform: RunResults | None
 
 
 def dataset_report(root: Path, output_dir: str | None) -> Path | None:
-    """`--dataset_root`: the person's work in a dataset (no run folder), printed, and written to `output_dir`."""
+    """`--dataset_root`: the person's work in a dataset (no run folder) and whether each task's demonstrations
+    can be imitated, printed, and written to `output_dir`."""
     if not has_dataset(root):
         raise AdaDemoError(f"--dataset_root: no LeRobot dataset at {root} (missing meta/info.json)")
-    lines = person_lines(root)
+    tasks = list(dict.fromkeys(read_episode_metadata(root)["task"]))
+    lines = [*person_lines(root), "", *imitability_lines(root, tasks)]
     print("\n".join(lines))
     if output_dir is None:
         return None
