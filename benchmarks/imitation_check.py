@@ -11,7 +11,7 @@ A third column runs the policy from new initial states (seeds it was not trained
 with no policy at all, asks whether the demonstrations can be imitated: how much of their action variance the
 nearest states of the task's other demonstrations explain (near 1: similar states got similar actions; near 0 or
 below: each demonstration acted its own way, and a policy trained on all of them averages them); `adademo-report`
-shows the same score for every run (`adademo_lerobot/loop/imitability.py`).
+shows the same score for every run (`adademo_lerobot/dataset/imitability.py`).
 
     python benchmarks/imitation_check.py --run_dir RUN [--round 0] [--episodes 20] [--new_states 20]
     python benchmarks/imitation_check.py --dataset DATASET_ROOT [--policy CHECKPOINT/pretrained_model]
@@ -28,11 +28,11 @@ import torch
 from _common import machine_line
 
 from adademo_lerobot.core.tables import table
+from adademo_lerobot.dataset.imitability import agreement_of, read_actions_and_states
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SEED
 from adademo_lerobot.dataset.metadata import load_suite_config, read_episode_metadata
 from adademo_lerobot.evaluation.policy import load_policy
 from adademo_lerobot.evaluation.rollouts import BatchedEvaluator
-from adademo_lerobot.loop.imitability import agreement_of, read_actions_and_states
 
 # New initial states: seeds 1000, 1001, ... (collection seeds are 64-bit hashes of the run's seed, never these).
 NEW_STATE_SEEDS = 1000

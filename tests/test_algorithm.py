@@ -320,6 +320,9 @@ class BudgetRound:
     def progress(self, task, record):
         pass
 
+    def run_tasks(self, one_task):
+        return [one_task(t) for t in self.tasks]
+
 
 def test_allocate_splits_exactly_in_proportion_within_caps():
     from adademo_lerobot.strategies.estimates import allocate
@@ -400,10 +403,76 @@ def test_budgeted_prior_comes_from_earlier_rounds_evaluations_with_decay(tmp_pat
 def test_the_papers_e_is_picked_to_fit_a_budget():
     from adademo_lerobot.strategies.adademo import pick_target_successes
 
-    target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.25}, cap=50)
+    target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.25}, caps={"a": 50, "b": 50})
     assert target == 5 and plan == {"a": 5, "b": 15}  # E=6 would need 6 + 18 = 24 > 20
-    target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.0}, cap=8)
+    target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.0}, caps={"a": 8, "b": 8})
     assert target == 8 and plan == {"a": 8, "b": 8}  # SR 0 gets CAP; past E=8 CAP stops the total growing
+
+
+def test_the_papers_e_is_picked_with_each_tasks_own_cap():
+    from adademo_lerobot.strategies.adademo import pick_target_successes
+
+    # b never succeeds, so it always gets its CAP; with 3 instead of 50, E grows until a's share fills the rest.
+    target, plan = pick_target_successes(20, {"a": 0.5, "b": 0.0}, caps={"a": 50, "b": 3})
+    assert target == 17 and plan == {"a": 17, "b": 3}
+
+
+def test_adademo_limits_a_task_whose_demonstrations_disagree_to_an_even_share(tmp_path):
+    """`--strategy.limit_disagreeing=true` on a real dataset: 10 scripted demonstrations of reach-v3 and of push-v3,
+    push's actions then drawn at random in the files. A round where the policy fails every state: reach collects to
+    CAP, push only to its even share of the budget; the round's settings journal the limit, and a resumed round
+    keeps it rather than scoring again."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from conftest import run_cli
+
+    from adademo_lerobot.dataset.metadata import data_files, read_episode_metadata
+    from adademo_lerobot.strategies.adademo import AdaDemoStrategy
+
+    root = tmp_path / "demo"
+    run_cli(
+        "adademo-collect", "--suite.type=metaworld", "--suite.tasks=reach-v3,push-v3", "--episodes_per_task=10",
+        "--dataset.repo_id=local/demo", f"--dataset.root={root}", "--seed=0",
+    )  # fmt: skip
+    episodes = read_episode_metadata(root)
+    push = episodes[episodes.task == "push-v3"]
+    starts_and_ends = zip(push.dataset_from_index, push.dataset_to_index, strict=True)
+    push_frames = np.concatenate([np.arange(a, b) for a, b in starts_and_ends])
+    rng = np.random.default_rng(0)
+    for path in data_files(root):
+        frames = pq.read_table(path)
+        actions = np.asarray(frames.column("action").to_pylist(), dtype=np.float32)
+        mine = np.isin(frames.column("index").to_numpy(), push_frames)
+        actions[mine] = rng.uniform(-1, 1, size=(int(mine.sum()), actions.shape[1]))
+        column = pa.FixedSizeListArray.from_arrays(pa.array(actions.ravel()), actions.shape[1])
+        pq.write_table(frames.set_column(frames.schema.get_field_index("action"), "action", column), path)
+
+    def round_with(limit: bool, resumed: dict | None = None):
+        ctx = BudgetRound({"reach-v3": "F" * 100, "push-v3": "F" * 100}, budget=30, root=str(root))
+        strategy = AdaDemoStrategy(None, 30, 20, 100, 0.5, limit_disagreeing=limit)
+        settings = strategy.start(ctx, resumed)
+        return settings, {r.task: (r.demos_added, r.max_demos_per_task) for r in strategy.expand(ctx)}
+
+    settings, demos = round_with(limit=True)
+    assert settings["limited_tasks"] == {"push-v3": 15} and demos == {
+        "reach-v3": (20, 20),
+        "push-v3": (15, 15),
+    }
+    settings, demos = round_with(limit=False)
+    assert "limited_tasks" not in settings and demos == {"reach-v3": (20, 20), "push-v3": (20, 20)}
+    # Resumed: the journaled limit holds, whatever the files would score now.
+    _, demos = round_with(limit=True, resumed={"limited_tasks": {"reach-v3": 4}, "target_successes": 10})
+    assert demos == {"reach-v3": (4, 4), "push-v3": (20, 20)}
+
+
+def test_limit_disagreeing_without_a_budget_is_refused():
+    from adademo_lerobot.strategies.adademo import AdaDemoConfig
+
+    config = AdaDemoConfig(target_successes=[5], max_demos_per_task=[10], limit_disagreeing=True)
+    with pytest.raises(AdaDemoError, match="give --strategy.budget too"):
+        config.validate()
+    AdaDemoConfig(budget=[20], max_demos_per_task=[10], limit_disagreeing=True).validate()
 
 
 def test_task_only_with_a_budget_evaluates_as_budgeted_but_demonstrates_from_fresh_states():

@@ -1,4 +1,4 @@
-"""The imitability score (`loop/imitability.py`): the share of a task's demonstration actions that the nearest
+"""The imitability score (`dataset/imitability.py`): the share of a task's demonstration actions that the nearest
 states of its other demonstrations explain, which `adademo-report` reads as "can a policy imitate these?"."""
 
 import numpy as np
@@ -8,8 +8,7 @@ import pytest
 from conftest import run_cli
 
 from adademo_lerobot.core.errors import AdaDemoError
-from adademo_lerobot.dataset.metadata import data_files
-from adademo_lerobot.loop.imitability import (
+from adademo_lerobot.dataset.imitability import (
     AGREE,
     DISAGREE,
     MIN_DEMONSTRATIONS,
@@ -19,6 +18,7 @@ from adademo_lerobot.loop.imitability import (
     demonstration_agreement,
     disagreement_notes,
 )
+from adademo_lerobot.dataset.metadata import data_files
 
 
 def demonstrations(episodes: int = 20, steps: int = 60, seed: int = 0):

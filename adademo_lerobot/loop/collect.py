@@ -14,10 +14,10 @@ from adademo_lerobot.core.files import exclusive_use
 from adademo_lerobot.core.progress import show
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.check import check_dataset_integrity
+from adademo_lerobot.dataset.imitability import disagreement_notes
 from adademo_lerobot.dataset.metadata import check_same_suite, has_dataset, load_suite_config
 from adademo_lerobot.dataset.store import DemoDataset
 from adademo_lerobot.executors import ExecutionArgs, Executor, make_executor
-from adademo_lerobot.loop.imitability import disagreement_notes
 from adademo_lerobot.strategies.round_context import RoundContext
 from adademo_lerobot.suites import TaskSuite, make_suite
 

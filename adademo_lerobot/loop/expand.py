@@ -111,7 +111,7 @@ def plan(cfg, suite, ctx: RoundContext, strategy: PlanningStrategy) -> list[dict
                 "episodes": record.eval_episodes,
                 "successes": record.successes,
                 "success_rate": sr,
-                "predicted_demos": planned_demos(target, sr, cap),
+                "predicted_demos": planned_demos(target, sr, strategy.task_cap(task)),
             }
         )
     print(f"plan for round {ctx.round_index} (E={target}, CAP={cap}); nothing collected")

@@ -229,7 +229,7 @@ def failure_lines(run: RunResults, out_dir: Path) -> list[str]:
 
 def imitability_lines(root: Path, tasks: list[str]) -> list[str]:
     """Can a policy imitate each task's demonstrations? A score from the data alone (`imitability.py`)."""
-    from adademo_lerobot.loop.imitability import AGREE, DEMONSTRATIONS, DISAGREE, demonstration_agreement
+    from adademo_lerobot.dataset.imitability import AGREE, DEMONSTRATIONS, DISAGREE, demonstration_agreement
 
     try:
         results = demonstration_agreement(root, tasks)

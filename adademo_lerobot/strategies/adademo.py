@@ -9,10 +9,12 @@ rounds' evaluations) fits the budget, as the paper sets E "according to the budg
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.dataset.imitability import DISAGREE, demonstration_agreement
 from adademo_lerobot.strategies.algorithm import InnerLoop, collect_on_failed_states
 from adademo_lerobot.strategies.base import (
     DEFAULT_TARGET_SUCCESSES,
@@ -29,13 +31,13 @@ log = logging.getLogger(__name__)
 
 
 def pick_target_successes(
-    budget: int, success_rates: dict[str, float], cap: int
+    budget: int, success_rates: dict[str, float], caps: dict[str, int]
 ) -> tuple[int, dict[str, int]]:
-    """The E whose predicted total (the paper's N_k = E / SR_k - E, capped at CAP) comes closest to the budget
-    without passing it (the smallest such E, once CAP stops the total from growing), and that prediction."""
-    best, best_plan = 1, {t: planned_demos(1, sr, cap) for t, sr in success_rates.items()}
+    """The E whose predicted total (the paper's N_k = E / SR_k - E, capped at each task's CAP) comes closest to the
+    budget without passing it (the smallest such E, once CAP stops the total from growing), and that prediction."""
+    best, best_plan = 1, {t: planned_demos(1, sr, caps[t]) for t, sr in success_rates.items()}
     for target in range(2, budget + 1):
-        plan = {t: planned_demos(target, sr, cap) for t, sr in success_rates.items()}
+        plan = {t: planned_demos(target, sr, caps[t]) for t, sr in success_rates.items()}
         if sum(plan.values()) > budget:
             break
         if sum(plan.values()) > sum(best_plan.values()):
@@ -63,6 +65,10 @@ class AdaDemoConfig(StrategyConfig):
     max_eval_episodes_per_task: int | None = None
     # With a budget: weight of an earlier round's evaluation outcomes per round since, in the success estimate.
     posterior_decay: float = DEFAULT_DECAY
+    # With a budget: a task whose first demonstrations disagree with each other (imitability score below 0.1,
+    # `dataset/imitability.py`) gets at most an even share of the round, budget / tasks, instead of CAP; the rest
+    # of the budget goes to the tasks a policy can learn from (principle A assumes more demonstrations help).
+    limit_disagreeing: bool = False
 
     def validate(self) -> None:
         for name in ("target_successes", "budget"):
@@ -76,6 +82,11 @@ class AdaDemoConfig(StrategyConfig):
             )
         check_eval_bound(self.max_eval_episodes_per_task)
         check_decay(self.posterior_decay)
+        if self.limit_disagreeing and not self.budget:
+            raise AdaDemoError(
+                "--strategy.limit_disagreeing=true limits a task to an even share of the round's budget: give "
+                "--strategy.budget too"
+            )
 
     def can_plan(self) -> bool:
         return True
@@ -87,6 +98,7 @@ class AdaDemoConfig(StrategyConfig):
             self.max_demos_per_task.at(round_in_run),
             self.max_eval_episodes_per_task,
             self.posterior_decay,
+            self.limit_disagreeing,
         )
 
 
@@ -107,18 +119,29 @@ class AdaDemoStrategy:
     cap: int
     max_eval_episodes_per_task: int | None
     posterior_decay: float
+    limit_disagreeing: bool = False
     name = "adademo"
     commits_by_task = True
 
+    def task_cap(self, task: str) -> int:
+        return self.caps[task]
+
     def start(self, ctx: InnerLoop, resumed: dict | None) -> dict:
         """E for the round: given, the default, or picked from the budget (a resumed round keeps its pick, since
-        the estimate would now include its own evaluations)."""
+        the estimate would now include its own evaluations); each task's CAP (a resumed round keeps its limits)."""
+        self.caps = dict.fromkeys(ctx.tasks, self.cap)
+        limited = {}
+        if self.limit_disagreeing:
+            limited = (
+                resumed["limited_tasks"] if resumed else disagreeing_task_caps(ctx, self.budget, self.cap)
+            )
+            self.caps.update(limited)
         if self.target_successes is None and self.budget is not None:
             if resumed and resumed.get("target_successes") is not None:
                 self.target_successes = resumed["target_successes"]
             else:
                 rates = estimated_success_rates(ctx.root, ctx.round_index, ctx.tasks, self.posterior_decay)
-                self.target_successes, plan = pick_target_successes(self.budget, rates, self.cap)
+                self.target_successes, plan = pick_target_successes(self.budget, rates, self.caps)
                 log.info(
                     "budget %d: picked E=%d (predicted demos %s; total %d)",
                     self.budget, self.target_successes,
@@ -133,13 +156,30 @@ class AdaDemoStrategy:
             "max_demos_per_task": self.cap,
             "budget": self.budget,
             "max_eval_episodes_per_task": self.max_eval_episodes_per_task,
+            **({"limited_tasks": limited} if self.limit_disagreeing else {}),
         }
 
     def expand(self, ctx: InnerLoop) -> list[TaskRoundRecord]:
         def one_task(task: str) -> TaskRoundRecord:
-            record = ctx.new_record(task, self.name, self.target_successes, self.cap)
+            cap = self.task_cap(task)
+            record = ctx.new_record(task, self.name, self.target_successes, cap)
             return collect_on_failed_states(
-                ctx, task, record, self.target_successes, self.cap, self.max_eval_episodes_per_task
+                ctx, task, record, self.target_successes, cap, self.max_eval_episodes_per_task
             )
 
         return ctx.run_tasks(one_task)
+
+
+def disagreeing_task_caps(ctx: InnerLoop, budget: int, cap: int) -> dict[str, int]:
+    """The CAP of each task whose first demonstrations disagree with each other: an even share of the budget."""
+    share = min(cap, math.ceil(budget / len(ctx.tasks)))
+    limited = {
+        a.task: share
+        for a in demonstration_agreement(ctx.root, ctx.tasks)
+        if a.score is not None and a.score < DISAGREE
+    }
+    for task in limited:
+        log.info(
+            "note: %s's demonstrations disagree with each other: at most %d new ones this round", task, share
+        )
+    return limited

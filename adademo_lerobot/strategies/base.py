@@ -182,3 +182,7 @@ class PlanningStrategy(ExpansionStrategy, Protocol):
 
     target_successes: int  # E, once `start` has picked it
     cap: int
+
+    def task_cap(self, task: str) -> int:
+        """The task's CAP this round, once `start` has fixed it (`cap`, or less: `limit_disagreeing`)."""
+        ...

@@ -102,6 +102,9 @@ class TaskOnlyStrategy:
     name = "task_only"
     commits_by_task = True
 
+    def task_cap(self, task: str) -> int:
+        return self.cap
+
     def start(self, ctx: RoundContext, resumed: dict | None) -> dict:
         return {
             "target_successes": self.target_successes,
