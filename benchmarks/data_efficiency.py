@@ -83,6 +83,13 @@ BACKOFF = ["--takeover.rule=backoff", "--takeover.stall_tolerance=0.01"]
 ALL_ARMS = {
     "uniform": ["--strategy.type=uniform", "--train.sampler=trajectory"],
     "adademo": ["--strategy.type=adademo", "--train.sampler=trajectory"],
+    # AdaDemo giving a task whose first demonstrations disagree (imitability below 0.1) only an even share of the
+    # round (the Adroit table's first recipe: 154 of AdaDemo's 185 demonstrations went to two such tasks).
+    "adademo_limited": [
+        "--strategy.type=adademo",
+        "--train.sampler=trajectory",
+        "--strategy.limit_disagreeing=true",
+    ],
     "adademo_tempered": ["--strategy.type=adademo", "--train.sampler=tempered", "--train.sampler_alpha=0.5"],
     "budgeted_tempered": [
         "--strategy.type=budgeted",
@@ -166,6 +173,7 @@ ALL_ARMS = {
 LABELS = {
     "uniform": "Uniform",
     "adademo": "AdaDemo (paper: E from the budget, trajectory sampler)",
+    "adademo_limited": "AdaDemo, disagreeing tasks limited to an even share",
     "adademo_tempered": "AdaDemo + tempered sampler (alpha 0.5)",
     "budgeted_tempered": "Budgeted + tempered sampler (alpha 0.5)",
     "budgeted": "Budgeted + trajectory sampler",
