@@ -461,9 +461,12 @@ def test_adademo_limits_a_task_whose_demonstrations_disagree_to_an_even_share(tm
     }
     settings, demos = round_with(limit=False)
     assert "limited_tasks" not in settings and demos == {"reach-v3": (20, 20), "push-v3": (20, 20)}
-    # Resumed: the journaled limit holds, whatever the files would score now.
-    _, demos = round_with(limit=True, resumed={"limited_tasks": {"reach-v3": 4}, "target_successes": 10})
-    assert demos == {"reach-v3": (4, 4), "push-v3": (20, 20)}
+    # Resumed: the journaled limits hold, whatever the files would score now or the flag says now.
+    for limit in (True, False):
+        _, demos = round_with(limit, resumed={"limited_tasks": {"reach-v3": 4}, "target_successes": 10})
+        assert demos == {"reach-v3": (4, 4), "push-v3": (20, 20)}
+    _, demos = round_with(limit=True, resumed={"target_successes": 10})  # journaled without the flag
+    assert demos == {"reach-v3": (20, 20), "push-v3": (20, 20)}
 
 
 def test_limit_disagreeing_without_a_budget_is_refused():

@@ -42,6 +42,10 @@ class Agreement:
     score: float | None
     reading: str
 
+    @property
+    def disagrees(self) -> bool:
+        return self.score is not None and self.score < DISAGREE
+
 
 def actions_explained_by_state(
     states: np.ndarray,
@@ -79,9 +83,8 @@ def read_actions_and_states(root: Path) -> tuple[np.ndarray, np.ndarray]:
         return values.to_numpy(zero_copy_only=False).reshape(len(column), -1).astype(dtype)
 
     index, actions, states = [], [], []
-    for path in data_files(
-        root
-    ):  # file by file: files may type a list column differently (fixed size or not)
+    # File by file: files may type a list column differently (fixed size or not).
+    for path in data_files(root):
         frames = pq.read_table(path, columns=["index", "action", "observation.state"])
         index.append(frames.column("index").to_numpy())
         actions.append(matrix(frames, "action", np.float32))
@@ -114,13 +117,18 @@ def agreement_reading(score: float | None) -> str:
     return "similar states got similar actions: consistent"
 
 
-def demonstration_agreement(root: Path, tasks: list[str], per_task: int = DEMONSTRATIONS) -> list[Agreement]:
-    """Per task, the score of its first `per_task` demonstrations (a person's or an expert's; the policy's own
-    kept rollouts are left out). Empty if the dataset records no `observation.state`."""
+def demonstration_agreement(
+    root: Path, tasks: list[str] | None = None, per_task: int = DEMONSTRATIONS
+) -> list[Agreement]:
+    """Per task (default: every task of the dataset, in the order they first appear), the score of its first
+    `per_task` demonstrations (a person's or an expert's; the policy's own kept rollouts are left out). Empty if
+    the dataset records no `observation.state`."""
     if "observation.state" not in read_info(root).get("features", {}):
         return []
     episodes = read_episode_metadata(root)  # in episode order
     episodes = episodes[episodes[COL_SOURCE] != POLICY_SOURCE]
+    if tasks is None:
+        tasks = list(dict.fromkeys(episodes["task"]))
     try:
         actions, states = read_actions_and_states(root)
     except (pa.ArrowException, ValueError) as err:  # e.g. an action that is not a list of numbers
@@ -148,5 +156,5 @@ def disagreement_notes(root: Path, tasks: list[str]) -> list[str]:
         f"{a.score:.2f}, below {DISAGREE}): a policy averages them, and more of the same are unlikely to help; "
         "give this task a more consistent expert (docs/commands/report.md)"
         for a in scored
-        if a.score is not None and a.score < DISAGREE
+        if a.disagrees
     ]

@@ -227,7 +227,7 @@ def failure_lines(run: RunResults, out_dir: Path) -> list[str]:
     ]
 
 
-def imitability_lines(root: Path, tasks: list[str]) -> list[str]:
+def imitability_lines(root: Path, tasks: list[str] | None = None) -> list[str]:
     """Can a policy imitate each task's demonstrations? A score from the data alone (`imitability.py`)."""
     from adademo_lerobot.dataset.imitability import AGREE, DEMONSTRATIONS, DISAGREE, demonstration_agreement
 
@@ -336,8 +336,7 @@ def dataset_report(root: Path, output_dir: str | None) -> Path | None:
     can be imitated, printed, and written to `output_dir`."""
     if not has_dataset(root):
         raise AdaDemoError(f"--dataset_root: no LeRobot dataset at {root} (missing meta/info.json)")
-    tasks = list(dict.fromkeys(read_episode_metadata(root)["task"]))
-    lines = [*person_lines(root), "", *imitability_lines(root, tasks)]
+    lines = [*person_lines(root), "", *imitability_lines(root)]
     print("\n".join(lines))
     if output_dir is None:
         return None

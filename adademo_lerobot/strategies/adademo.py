@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
-from adademo_lerobot.dataset.imitability import DISAGREE, demonstration_agreement
+from adademo_lerobot.dataset.imitability import demonstration_agreement
 from adademo_lerobot.strategies.algorithm import InnerLoop, collect_on_failed_states
 from adademo_lerobot.strategies.base import (
     DEFAULT_TARGET_SUCCESSES,
@@ -120,6 +120,7 @@ class AdaDemoStrategy:
     max_eval_episodes_per_task: int | None
     posterior_decay: float
     limit_disagreeing: bool = False
+    caps: dict[str, int] = field(default_factory=dict, init=False)  # each task's CAP, fixed by `start`
     name = "adademo"
     commits_by_task = True
 
@@ -129,13 +130,11 @@ class AdaDemoStrategy:
     def start(self, ctx: InnerLoop, resumed: dict | None) -> dict:
         """E for the round: given, the default, or picked from the budget (a resumed round keeps its pick, since
         the estimate would now include its own evaluations); each task's CAP (a resumed round keeps its limits)."""
-        self.caps = dict.fromkeys(ctx.tasks, self.cap)
-        limited = {}
-        if self.limit_disagreeing:
-            limited = (
-                resumed["limited_tasks"] if resumed else disagreeing_task_caps(ctx, self.budget, self.cap)
-            )
-            self.caps.update(limited)
+        if resumed:  # the limits it journaled, none if it journaled none, whatever the flag says now
+            limited = resumed.get("limited_tasks", {})
+        else:
+            limited = disagreeing_task_caps(ctx, self.budget, self.cap) if self.limit_disagreeing else {}
+        self.caps = {**dict.fromkeys(ctx.tasks, self.cap), **limited}
         if self.target_successes is None and self.budget is not None:
             if resumed and resumed.get("target_successes") is not None:
                 self.target_successes = resumed["target_successes"]
@@ -156,7 +155,7 @@ class AdaDemoStrategy:
             "max_demos_per_task": self.cap,
             "budget": self.budget,
             "max_eval_episodes_per_task": self.max_eval_episodes_per_task,
-            **({"limited_tasks": limited} if self.limit_disagreeing else {}),
+            **({"limited_tasks": limited} if self.limit_disagreeing or limited else {}),
         }
 
     def expand(self, ctx: InnerLoop) -> list[TaskRoundRecord]:
@@ -173,11 +172,7 @@ class AdaDemoStrategy:
 def disagreeing_task_caps(ctx: InnerLoop, budget: int, cap: int) -> dict[str, int]:
     """The CAP of each task whose first demonstrations disagree with each other: an even share of the budget."""
     share = min(cap, math.ceil(budget / len(ctx.tasks)))
-    limited = {
-        a.task: share
-        for a in demonstration_agreement(ctx.root, ctx.tasks)
-        if a.score is not None and a.score < DISAGREE
-    }
+    limited = {a.task: share for a in demonstration_agreement(ctx.root, ctx.tasks) if a.disagrees}
     for task in limited:
         log.info(
             "note: %s's demonstrations disagree with each other: at most %d new ones this round", task, share
