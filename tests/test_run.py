@@ -256,6 +256,36 @@ def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_
         RunState(older, {"strategy": "adademo", "lr_schedule": "cosine"})
 
 
+def test_a_run_started_before_limit_disagreeing_existed_resumes_as_a_run_without_it(tmp_path):
+    from adademo_lerobot.core.errors import AdaDemoError
+    from adademo_lerobot.loop.run_state import RunState
+    from adademo_lerobot.strategies.adademo import AdaDemoConfig
+    from adademo_lerobot.strategies.uniform import UniformConfig
+
+    later = {"lr_schedule": "cosine", "demo_start": "initial", "takeover": None}
+    journaled = AdaDemoConfig(budget=[40, 60]).to_dict()
+    del journaled["limit_disagreeing"]  # what an adademo run started before the field recorded
+    (tmp_path / "run_state.json").write_text(
+        json.dumps({"settings": {"strategy": journaled, **later}, "done": {"collect": {}}})
+    )
+    now = {"strategy": AdaDemoConfig(budget=[40, 60]).to_dict(), **later}
+    assert RunState(tmp_path, now).done == {"collect": {}}
+    assert json.loads((tmp_path / "run_state.json").read_text())["settings"]["strategy"] == now["strategy"]
+    (tmp_path / "run_state.json").write_text(
+        json.dumps({"settings": {"strategy": journaled, **later}, "done": {"collect": {}}})
+    )
+    limited = {"strategy": AdaDemoConfig(budget=[40, 60], limit_disagreeing=True).to_dict(), **later}
+    with pytest.raises(
+        AdaDemoError, match="strategy"
+    ):  # it ran without the limit: turning it on is another run
+        RunState(tmp_path, limited)
+    uniform = tmp_path / "uniform"  # a strategy without the field records none and needs none
+    uniform.mkdir()
+    settings = {"strategy": UniformConfig(budget=[40, 60]).to_dict(), **later}
+    RunState(uniform, settings)
+    assert "limit_disagreeing" not in RunState(uniform, settings).settings["strategy"]
+
+
 def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_type_checked(tmp_path):
     from adademo_lerobot.core.errors import AdaDemoError
     from adademo_lerobot.loop.run_state import RunState

@@ -28,6 +28,10 @@ class RunState:
                 state["settings"].setdefault(key, default)
             legacy = state["settings"].get("strategy")
             current = settings.get("strategy")
+            if isinstance(legacy, dict) and isinstance(current, dict):
+                for key, default in STRATEGY_FIELDS_ADDED_LATER.items():
+                    if key in current and key not in legacy:  # started before the field existed: it was off
+                        legacy[key] = default
             if isinstance(legacy, str) and isinstance(current, dict) and legacy == current.get("type"):
                 # Started before 0.3, when the strategy was a name and its values shared top-level flags that
                 # applied or not by strategy: only the type can be checked.
@@ -98,6 +102,9 @@ FIXED_SETTINGS = (
 )
 # Settings that runs started by an earlier release do not record, with the value those runs used.
 SETTINGS_ADDED_LATER = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}
+# Strategy fields that runs started by an earlier release do not record, with the value those runs used (for the
+# strategies that have the field now).
+STRATEGY_FIELDS_ADDED_LATER = {"limit_disagreeing": False}
 
 
 def saved_stage(run_dir: Path, name: str) -> dict | None:
