@@ -256,34 +256,40 @@ def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_
         RunState(older, {"strategy": "adademo", "lr_schedule": "cosine"})
 
 
-def test_a_run_started_before_limit_disagreeing_existed_resumes_as_a_run_without_it(tmp_path):
+def test_a_run_started_before_a_strategy_field_existed_resumes_as_that_field_s_default(tmp_path):
     from adademo_lerobot.core.errors import AdaDemoError
     from adademo_lerobot.loop.run_state import RunState
+    from adademo_lerobot.strategies import StrategyConfig
     from adademo_lerobot.strategies.adademo import AdaDemoConfig
-    from adademo_lerobot.strategies.uniform import UniformConfig
 
     later = {"lr_schedule": "cosine", "demo_start": "initial", "takeover": None}
+
+    def journal(run_dir, strategy: dict):
+        run_dir.mkdir(exist_ok=True)
+        state = {"settings": {"strategy": strategy, **later}, "done": {"collect": {}}}
+        (run_dir / "run_state.json").write_text(json.dumps(state))
+        return run_dir
+
+    for name in StrategyConfig.get_known_choices():  # every field of every strategy, today's and a new one's
+        defaults = StrategyConfig.get_choice_class(name)().to_dict()
+        for field in set(defaults) - {"type"}:
+            older = journal(tmp_path / f"{name}-{field}", {k: v for k, v in defaults.items() if k != field})
+            now = {"strategy": defaults, **later}
+            assert RunState(older, now, strategy_defaults=defaults).done == {"collect": {}}, (name, field)
+            assert json.loads((older / "run_state.json").read_text())["settings"]["strategy"] == defaults
+
+    # An adademo run started before --strategy.limit_disagreeing ran without the limit: turning it on is refused.
     journaled = AdaDemoConfig(budget=[40, 60]).to_dict()
-    del journaled["limit_disagreeing"]  # what an adademo run started before the field recorded
-    (tmp_path / "run_state.json").write_text(
-        json.dumps({"settings": {"strategy": journaled, **later}, "done": {"collect": {}}})
-    )
+    del journaled["limit_disagreeing"]
+    defaults = AdaDemoConfig().to_dict()
     now = {"strategy": AdaDemoConfig(budget=[40, 60]).to_dict(), **later}
-    assert RunState(tmp_path, now).done == {"collect": {}}
-    assert json.loads((tmp_path / "run_state.json").read_text())["settings"]["strategy"] == now["strategy"]
-    (tmp_path / "run_state.json").write_text(
-        json.dumps({"settings": {"strategy": journaled, **later}, "done": {"collect": {}}})
-    )
+    assert RunState(journal(tmp_path / "off", journaled), now, strategy_defaults=defaults).done
     limited = {"strategy": AdaDemoConfig(budget=[40, 60], limit_disagreeing=True).to_dict(), **later}
-    with pytest.raises(
-        AdaDemoError, match="strategy"
-    ):  # it ran without the limit: turning it on is another run
-        RunState(tmp_path, limited)
-    uniform = tmp_path / "uniform"  # a strategy without the field records none and needs none
-    uniform.mkdir()
-    settings = {"strategy": UniformConfig(budget=[40, 60]).to_dict(), **later}
-    RunState(uniform, settings)
-    assert "limit_disagreeing" not in RunState(uniform, settings).settings["strategy"]
+    with pytest.raises(AdaDemoError, match="strategy"):
+        RunState(journal(tmp_path / "on", journaled), limited, strategy_defaults=defaults)
+    with pytest.raises(AdaDemoError, match="strategy"):  # nor does a field missing change another field
+        changed = {"strategy": AdaDemoConfig(budget=[40, 80]).to_dict(), **later}
+        RunState(journal(tmp_path / "budget", journaled), changed, strategy_defaults=defaults)
 
 
 def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_type_checked(tmp_path):

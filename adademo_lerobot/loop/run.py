@@ -156,7 +156,8 @@ def run(cfg: RunConfig, on_ledger_written: Callable[[int], None] | None = None) 
     suite, start = checked_suite_and_start(cfg, run_dir)  # everything refused before anything is written
     run_dir.mkdir(parents=True, exist_ok=True)
     with exclusive_use(run_dir, "adademo-run"), Episodes(cfg, suite) as episodes:
-        state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()), on_stage=print)
+        settings = run_settings(cfg, suite.config.to_dict())
+        state = RunState(run_dir, settings, on_stage=print, strategy_defaults=type(cfg.strategy)().to_dict())
         if cfg.dataset.repo_id is not None:  # the user's data
             data = RunData.of_stage(state.stage("start", begin_from, cfg, start, run_dir))
         else:

@@ -17,9 +17,16 @@ from adademo_lerobot.core.files import atomic_write_text
 class RunState:
     """Finished stages of a run, plus the settings that define it (a rerun must keep them). `on_stage` hears
     `[done] NAME` for a stage an earlier invocation finished and `[run]  NAME` for one that runs (the command
-    prints them)."""
+    prints them). `strategy_defaults`: the strategy's fields at their defaults, which a run started before a field
+    existed ran as (a field's default keeps the behaviour from before it)."""
 
-    def __init__(self, run_dir: Path, settings: dict, on_stage: Callable[[str], None] | None = None):
+    def __init__(
+        self,
+        run_dir: Path,
+        settings: dict,
+        on_stage: Callable[[str], None] | None = None,
+        strategy_defaults: dict | None = None,
+    ):
         self.path = run_dir / "run_state.json"
         self._on_stage = on_stage or (lambda line: None)
         if self.path.exists():
@@ -28,10 +35,13 @@ class RunState:
                 state["settings"].setdefault(key, default)
             legacy = state["settings"].get("strategy")
             current = settings.get("strategy")
-            if isinstance(legacy, dict) and isinstance(current, dict):
-                for key, default in STRATEGY_FIELDS_ADDED_LATER.items():
-                    if key in current and key not in legacy:  # started before the field existed: it was off
-                        legacy[key] = default
+            if (
+                isinstance(legacy, dict)
+                and isinstance(current, dict)
+                and legacy.get("type") == current.get("type")
+            ):
+                for key, default in (strategy_defaults or {}).items():
+                    legacy.setdefault(key, default)  # started before the field existed
             if isinstance(legacy, str) and isinstance(current, dict) and legacy == current.get("type"):
                 # Started before 0.3, when the strategy was a name and its values shared top-level flags that
                 # applied or not by strategy: only the type can be checked.
@@ -102,9 +112,6 @@ FIXED_SETTINGS = (
 )
 # Settings that runs started by an earlier release do not record, with the value those runs used.
 SETTINGS_ADDED_LATER = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}
-# Strategy fields that runs started by an earlier release do not record, with the value those runs used (for the
-# strategies that have the field now).
-STRATEGY_FIELDS_ADDED_LATER = {"limit_disagreeing": False}
 
 
 def saved_stage(run_dir: Path, name: str) -> dict | None:
