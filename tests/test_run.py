@@ -256,40 +256,47 @@ def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_
         RunState(older, {"strategy": "adademo", "lr_schedule": "cosine"})
 
 
-def test_a_run_started_before_a_strategy_field_existed_resumes_as_that_field_s_default(tmp_path):
+def test_a_run_started_before_a_config_field_existed_resumes_as_that_field_s_default(tmp_path):
+    from adademo_lerobot.collectors.takeover import TakeoverArgs
     from adademo_lerobot.core.errors import AdaDemoError
     from adademo_lerobot.loop.run_state import RunState
     from adademo_lerobot.strategies import StrategyConfig
     from adademo_lerobot.strategies.adademo import AdaDemoConfig
+    from adademo_lerobot.suites import SuiteConfig
 
-    later = {"lr_schedule": "cosine", "demo_start": "initial", "takeover": None}
+    later = {"lr_schedule": "cosine", "demo_start": "takeover"}
 
-    def journal(run_dir, strategy: dict):
+    def journal(run_dir, settings: dict):
         run_dir.mkdir(exist_ok=True)
-        state = {"settings": {"strategy": strategy, **later}, "done": {"collect": {}}}
+        state = {"settings": {**later, **settings}, "done": {"collect": {}}}
         (run_dir / "run_state.json").write_text(json.dumps(state))
         return run_dir
 
-    for name in StrategyConfig.get_known_choices():  # every field of every strategy, today's and a new one's
-        defaults = StrategyConfig.get_choice_class(name)().to_dict()
+    configs = [("takeover", TakeoverArgs)]  # every field of every strategy and suite, today's and a new one's
+    configs += [("strategy", StrategyConfig.get_choice_class(n)) for n in StrategyConfig.get_known_choices()]
+    configs += [("suite", SuiteConfig.get_choice_class(n)) for n in SuiteConfig.get_known_choices()]
+    for setting, config in configs:
+        defaults = config().to_dict()
         for field in set(defaults) - {"type"}:
-            older = journal(tmp_path / f"{name}-{field}", {k: v for k, v in defaults.items() if k != field})
-            now = {"strategy": defaults, **later}
-            assert RunState(older, now, strategy_defaults=defaults).done == {"collect": {}}, (name, field)
-            assert json.loads((older / "run_state.json").read_text())["settings"]["strategy"] == defaults
+            without = {k: v for k, v in defaults.items() if k != field}
+            older = journal(tmp_path / f"{setting}-{config.__name__}-{field}", {setting: without})
+            now = {setting: defaults, **later}
+            state = RunState(older, now, field_defaults={setting: defaults})
+            assert state.done == {"collect": {}}, (setting, config, field)
+            assert json.loads((older / "run_state.json").read_text())["settings"][setting] == defaults
 
     # An adademo run started before --strategy.limit_disagreeing ran without the limit: turning it on is refused.
     journaled = AdaDemoConfig(budget=[40, 60]).to_dict()
     del journaled["limit_disagreeing"]
-    defaults = AdaDemoConfig().to_dict()
+    defaults = {"strategy": AdaDemoConfig().to_dict()}
     now = {"strategy": AdaDemoConfig(budget=[40, 60]).to_dict(), **later}
-    assert RunState(journal(tmp_path / "off", journaled), now, strategy_defaults=defaults).done
+    assert RunState(journal(tmp_path / "off", {"strategy": journaled}), now, field_defaults=defaults).done
     limited = {"strategy": AdaDemoConfig(budget=[40, 60], limit_disagreeing=True).to_dict(), **later}
     with pytest.raises(AdaDemoError, match="strategy"):
-        RunState(journal(tmp_path / "on", journaled), limited, strategy_defaults=defaults)
-    with pytest.raises(AdaDemoError, match="strategy"):  # nor does a field missing change another field
-        changed = {"strategy": AdaDemoConfig(budget=[40, 80]).to_dict(), **later}
-        RunState(journal(tmp_path / "budget", journaled), changed, strategy_defaults=defaults)
+        RunState(journal(tmp_path / "on", {"strategy": journaled}), limited, field_defaults=defaults)
+    changed = {"strategy": AdaDemoConfig(budget=[40, 80]).to_dict(), **later}
+    with pytest.raises(AdaDemoError, match="strategy"):  # nor does a field missing let another one change
+        RunState(journal(tmp_path / "budget", {"strategy": journaled}), changed, field_defaults=defaults)
 
 
 def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_type_checked(tmp_path):

@@ -17,15 +17,16 @@ from adademo_lerobot.core.files import atomic_write_text
 class RunState:
     """Finished stages of a run, plus the settings that define it (a rerun must keep them). `on_stage` hears
     `[done] NAME` for a stage an earlier invocation finished and `[run]  NAME` for one that runs (the command
-    prints them). `strategy_defaults`: the strategy's fields at their defaults, which a run started before a field
-    existed ran as (a field's default keeps the behaviour from before it)."""
+    prints them). `field_defaults`: the fields of the settings that are configs (strategy, suite, takeover) at
+    their defaults, which a run started before a field existed ran as (a field's default keeps the behaviour from
+    before the field)."""
 
     def __init__(
         self,
         run_dir: Path,
         settings: dict,
         on_stage: Callable[[str], None] | None = None,
-        strategy_defaults: dict | None = None,
+        field_defaults: dict[str, dict] | None = None,
     ):
         self.path = run_dir / "run_state.json"
         self._on_stage = on_stage or (lambda line: None)
@@ -33,15 +34,13 @@ class RunState:
             state = json.loads(self.path.read_text())
             for key, default in SETTINGS_ADDED_LATER.items():  # a run started before the setting existed
                 state["settings"].setdefault(key, default)
-            legacy = state["settings"].get("strategy")
-            current = settings.get("strategy")
-            if (
-                isinstance(legacy, dict)
-                and isinstance(current, dict)
-                and legacy.get("type") == current.get("type")
-            ):
-                for key, default in (strategy_defaults or {}).items():
-                    legacy.setdefault(key, default)  # started before the field existed
+            for name, defaults in (field_defaults or {}).items():
+                journaled, current = state["settings"].get(name), settings.get(name)
+                configs = isinstance(journaled, dict) and isinstance(current, dict)
+                if configs and journaled.get("type") == current.get("type"):
+                    for key, default in defaults.items():
+                        journaled.setdefault(key, default)  # started before the field existed
+            legacy, current = state["settings"].get("strategy"), settings.get("strategy")
             if isinstance(legacy, str) and isinstance(current, dict) and legacy == current.get("type"):
                 # Started before 0.3, when the strategy was a name and its values shared top-level flags that
                 # applied or not by strategy: only the type can be checked.
