@@ -212,6 +212,15 @@ class Comparison:
         str, dict[str, PerSeed]
     ]  # reading -> measure -> cost to reach Uniform's final / Uniform's cost
     cstar: dict[str, PerSeed]  # reading -> the break-even rollout cost c*
+    uniform_gain: (
+        np.ndarray
+    )  # per seed, points: Uniform's final average minus round 0's (which every arm shares)
+
+    @property
+    def flat_seeds(self) -> list[int]:
+        """Seeds where Uniform's added demonstrations did not raise its average: every arm starts at or above
+        Uniform's final there, so it 'reaches' it before adding anything (ratio 0, c* infinite by construction)."""
+        return [s for s, gain in zip(self.seeds, self.uniform_gain, strict=True) if gain <= 0]
 
 
 def diff_at_equal(
@@ -267,9 +276,11 @@ def compare(runs: dict[tuple[str, int], Run], arm: str, seeds: list[int]) -> Com
     episodes_diff, episodes_level = [], []
     ratio = {r: {m: [] for m in MEASURES} for r in READINGS}
     cstar = {r: [] for r in READINGS}
+    gains = []
     for s in seeds:
         mine, uniform = runs[(arm, s)], runs[("uniform", s)]
         final.append(100 * (mine.average[-1] - uniform.average[-1]))
+        gains.append(100 * (uniform.average[-1] - uniform.average[0]))
         demos_diff.append(diff_at_equal(mine, uniform, "demos")[0])
         diff, level = diff_at_equal(mine, uniform, "frames")
         frames_diff.append(diff)
@@ -291,6 +302,7 @@ def compare(runs: dict[tuple[str, int], Run], arm: str, seeds: list[int]) -> Com
         per_seed(episodes_level),
         {r: {m: per_seed(v) for m, v in by.items()} for r, by in ratio.items()},
         {r: per_seed(v) for r, v in cstar.items()},
+        np.array(gains),
     )
 
 
@@ -681,6 +693,25 @@ def where_episodes_went(
     ]
 
 
+def flat_uniform_lines(runs: dict[tuple[str, int], Run], seeds: list[int]) -> list[str]:
+    """Where Uniform's added demonstrations did not raise its average, said once: every arm starts at or above
+    Uniform's final there, so 'reaches Uniform's final' holds at round 0 and its goals are not read."""
+    flat = [s for s in seeds if runs[("uniform", s)].average[-1] <= runs[("uniform", s)].average[0]]
+    if not flat:
+        return []
+    curves = "; ".join(
+        f"seed {s} {100 * runs[('uniform', s)].average[0]:.1f} -> {100 * runs[('uniform', s)].average[-1]:.1f} %"
+        for s in flat
+    )
+    return [
+        "",
+        f"Uniform's added demonstrations did not raise its average on {len(flat)} of {len(seeds)} seeds "
+        f"({curves}): every arm starts there at or above Uniform's final, so it 'reaches' it with nothing added "
+        "(0x, c* infinite) by construction; the goals against Uniform's final are not read while such a seed "
+        "is in the pairing.",
+    ]
+
+
 def write_report(
     folder: Path,
     labels: dict[str, str],
@@ -790,6 +821,7 @@ def write_report(
             for a, c in comparisons.items()
         )
         + ".",
+        *flat_uniform_lines(runs, seeds_of["uniform"]),
         "",
         "## What a person pays: episodes, and the break-even rollout cost c*",
         "",
@@ -899,9 +931,21 @@ def five_points_line(measure: str, diffs: np.ndarray) -> str:
     return points_goal_line(measure, diffs, 5, 5)
 
 
-def ratio_verdict(values: PerSeed, goal: float) -> str:
+def flat_verdict(c: Comparison) -> str | None:
+    """The verdict of a goal read against Uniform's final where Uniform's added data did not raise it."""
+    if not c.flat_seeds:
+        return None
+    return (
+        f"not read: on {len(c.flat_seeds)} of {len(c.seeds)} seeds Uniform's final average is at or under "
+        "round 0's, where the arm starts (reached with nothing added, by construction)"
+    )
+
+
+def ratio_verdict(values: PerSeed, goal: float, c: Comparison | None = None) -> str:
     """'met' when the arm reaches Uniform's final on every seed with a mean cost ratio <= goal (at both
-    bounds), else by how much it missed."""
+    bounds), else by how much it missed; not read where Uniform's final is no higher than round 0 (`c`)."""
+    if c is not None and (flat := flat_verdict(c)):
+        return flat
     reached = [v for v in values.low if v is not None]
     if len(reached) < len(values.low):
         return f"missed: never reached on {len(values.low) - len(reached)} of {len(values.low)} seeds"
@@ -914,8 +958,11 @@ def ratio_verdict(values: PerSeed, goal: float) -> str:
     return "not decided within the bounds of expert episodes"
 
 
-def cstar_verdict(values: PerSeed, goal: float = 1.0) -> str:
-    """'met' when the arm reaches Uniform's final on every seed with a mean c* >= goal (at both bounds)."""
+def cstar_verdict(values: PerSeed, goal: float = 1.0, c: Comparison | None = None) -> str:
+    """'met' when the arm reaches Uniform's final on every seed with a mean c* >= goal (at both bounds); not
+    read where Uniform's final is no higher than round 0 (`c`)."""
+    if c is not None and (flat := flat_verdict(c)):
+        return flat
     never = sum(v is None for v in values.low)
     if never:
         return f"missed: never reached on {never} of {len(values.low)} seeds"
@@ -940,7 +987,7 @@ def efficiency_goal_lines(
     c = comparisons[arm]
     lines = [f"Best arm: {labels.get(arm, arm)} ({seeds_text(len(c.seeds))})."]
     readings = [
-        f"{name} {ratio_verdict(c.ratio[r]['demos'], 1 / 3)} ({fmt_ratio(c.ratio[r]['demos'], note=False)})"
+        f"{name} {ratio_verdict(c.ratio[r]['demos'], 1 / 3, c)} ({fmt_ratio(c.ratio[r]['demos'], note=False)})"
         for r, name in READINGS.items()
     ]
     lines.append(
@@ -968,14 +1015,15 @@ def cost_goal_lines(comparisons: dict[str, Comparison], labels: dict[str, str]) 
     )
     c = comparisons[arm]
     readings = [
-        f"{name}, c* {fmt_cstar(c.cstar[r])} ({cstar_verdict(c.cstar[r])}; "
+        f"{name}, c* {fmt_cstar(c.cstar[r])} ({cstar_verdict(c.cstar[r], c=c)}; "
         f"{fmt_ratio(c.ratio[r]['episodes'], note=False)} Uniform's episodes) and "
         f"{fmt_ratio(c.ratio[r]['demos'], note=False)} of its demonstrations "
-        f"({ratio_verdict(c.ratio[r]['demos'], 1 / 3)})"
+        f"({ratio_verdict(c.ratio[r]['demos'], 1 / 3, c)})"
         for r, name in READINGS.items()
     ]
     met = {
-        name: cstar_verdict(c.cstar[r]) == "met" and ratio_verdict(c.ratio[r]["demos"], 1 / 3) == "met"
+        name: cstar_verdict(c.cstar[r], c=c) == "met"
+        and ratio_verdict(c.ratio[r]["demos"], 1 / 3, c) == "met"
         for r, name in READINGS.items()
     }
     overall = (
@@ -1029,7 +1077,7 @@ def goal_lines(
     c = comparisons[arm]
     lines = [f"Best takeover arm: {labels.get(arm, arm)} ({seeds_text(len(c.seeds))})."]
     readings = [
-        f"{name} {ratio_verdict(c.ratio[r]['frames'], 1 / 3)} "
+        f"{name} {ratio_verdict(c.ratio[r]['frames'], 1 / 3, c)} "
         f"({fmt_ratio(c.ratio[r]['frames'], note=False)}, goal 0.33x)"
         for r, name in READINGS.items()
     ]

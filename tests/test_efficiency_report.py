@@ -331,6 +331,29 @@ def test_cost_goal_lines_say_by_how_much_a_goal_is_missed():
     assert "at trained policies, c* 3.50 [3.50, 3.50] (met;" in line
 
 
+def test_goals_are_not_read_on_a_seed_where_uniform_ends_at_or_under_round_0():
+    r = runs(50)
+    r[("uniform", 2)] = report.load_run(
+        summary("uniform", 2, [0.5, 0.6, 0.4, 0.5], 200)
+    )  # ends where it began
+    comparisons = {"takeover": report.compare(r, "takeover", list(range(5)))}
+    assert comparisons["takeover"].flat_seeds == [2]
+    assert comparisons["takeover"].ratio["interpolated"]["demos"].low[2] == 0.0  # reached before adding any
+    not_read = "not read: on 1 of 5 seeds Uniform's final average is at or under round 0's"
+    assert f"demonstrations: interpolated {not_read}" in report.efficiency_goal_lines(comparisons, {}, {})[1]
+    cost = report.cost_goal_lines(comparisons, {})[1]
+    assert "intervals: missed:" in cost and not_read in cost
+    lines = report.flat_uniform_lines(r, list(range(5)))
+    assert "did not raise its average on 1 of 5 seeds (seed 2 50.0 -> 50.0 %)" in lines[1]
+    assert report.flat_uniform_lines(runs(50), list(range(5))) == []  # Uniform gained on every seed
+    assert (
+        "not read"
+        not in report.efficiency_goal_lines(
+            {"takeover": report.compare(runs(50), "takeover", list(range(5)))}, {}, {}
+        )[1]
+    )
+
+
 def test_points_goal_is_met_only_with_the_interval_above_zero():
     assert report.points_goal_line("episodes", np.array([4.0, 5.0, 6.0]), goal=3, min_seeds=0).endswith(
         ": met: +5.0 [+2.5, +7.5]."
