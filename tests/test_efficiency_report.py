@@ -410,6 +410,12 @@ def test_break_even_words_for_one_run_against_a_uniform_run():
         "This run never reached the Uniform run's final 80.0 % (its best: 70.0 % after round 2): no "
         "break-even rollout cost (Uniform used 90 expert episodes)."
     ]
+    flat = {**uniform, "success": [0.5, 0.45]}  # Uniform's added demonstrations lowered its average
+    assert costs.break_even_lines(run, flat) == [
+        "The Uniform run's final 45.0 % is no higher than where this run started (50.0 % at round 0): it is "
+        "reached with nothing added, so it says nothing of a break-even rollout cost (Uniform used 90 expert "
+        "episodes)."
+    ]
 
 
 def test_runs_whose_round_0_differs_from_uniforms_are_left_out_of_the_pairing(tmp_path):

@@ -146,6 +146,12 @@ def break_even_lines(run: dict, uniform: dict, label: str = "AdaDemo") -> list[s
             f"This run never reached the Uniform run's final {100 * target:.1f} % (its best: "
             f"{100 * run['success'][best]:.1f} % after round {best}): no break-even rollout cost ({used})."
         ]
+    if at[0] == 0:  # Uniform's added data did not lift it above where both runs started
+        return [
+            f"The Uniform run's final {100 * target:.1f} % is no higher than where this run started "
+            f"({100 * run['success'][0]:.1f} % at round 0): it is reached with nothing added, so it says nothing "
+            f"of a break-even rollout cost ({used})."
+        ]
 
     def reading(at: tuple[int, float]) -> tuple[float, float, str, float]:
         """c* at its lower and upper bound, the expert episodes and the rollouts spent at `at`."""
