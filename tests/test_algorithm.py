@@ -227,6 +227,27 @@ def test_journal_keeps_its_index_in_memory_and_on_disk(tmp_path):
     assert RoundJournal.in_progress(tmp_path) == [] and reread.archive_path.exists()
 
 
+def test_a_round_journaled_before_a_takeover_field_existed_resumes_as_that_field_s_default(tmp_path):
+    from adademo_lerobot.collectors.takeover import TakeoverArgs
+
+    defaults = TakeoverArgs().to_dict()
+    for name in defaults:
+        journal = RoundJournal(tmp_path / name, 1)
+        older = {k: v for k, v in defaults.items() if k != name}
+        journal.start({"strategy": "budgeted", "demo_start": "takeover", "takeover": older})
+        now = {"strategy": "budgeted", "demo_start": "takeover", "takeover": defaults}
+        RoundJournal(tmp_path / name, 1).start(now, field_defaults={"takeover": defaults})
+        with pytest.raises(AdaDemoError, match="other settings"):  # without the defaults it is another round
+            RoundJournal(tmp_path / name, 1).start(now)
+    journal = RoundJournal(tmp_path / "changed", 1)
+    journal.start(
+        {"strategy": "budgeted", "takeover": {k: v for k, v in defaults.items() if k != "attempts"}}
+    )
+    changed = {"strategy": "budgeted", "takeover": defaults | {"attempts": defaults["attempts"] + 1}}
+    with pytest.raises(AdaDemoError, match="other settings"):  # a value set otherwise is still refused
+        RoundJournal(tmp_path / "changed", 1).start(changed, field_defaults={"takeover": defaults})
+
+
 def test_ledger_appends_whole_rounds_once(tmp_path):
     records = [
         TaskRoundRecord(

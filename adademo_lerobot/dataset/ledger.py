@@ -103,13 +103,18 @@ class RoundJournal:
             sync_file(self.path)
         self._unsynced = False
 
-    def start(self, settings: dict) -> None:
-        """Begin the round, or check that a resumed round uses the same settings."""
+    def start(self, settings: dict, field_defaults: dict[str, dict] | None = None) -> None:
+        """Begin the round, or check that a resumed round uses the same settings. `field_defaults`: the fields of
+        the settings that are configs (takeover) at their defaults, which a round journaled before a field
+        existed ran as."""
         entries = self.entries()
         if not entries:
             self.append({"type": "start", **settings})
             return
         started = {k: v for k, v in entries[0].items() if k != "type"}
+        for name, defaults in (field_defaults or {}).items():
+            if isinstance(started.get(name), dict):
+                started[name] = defaults | started[name]  # journaled before the field existed
         diffs = [k for k in {**started, **settings} if started.get(k) != settings.get(k)]
         if diffs:
             details = ", ".join(f"{k}: {started.get(k)!r} -> {settings.get(k)!r}" for k in diffs)

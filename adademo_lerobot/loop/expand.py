@@ -17,7 +17,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from adademo_lerobot.collectors.takeover import check_can_take_over
+from adademo_lerobot.collectors.takeover import TakeoverArgs, check_can_take_over
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import exclusive_use
@@ -230,7 +230,8 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
             "seed": cfg.seed,
             "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
             **journaled_round_settings(cfg),
-        }
+        },
+        field_defaults={"takeover": TakeoverArgs().to_dict()},
     )
     started_at = time.perf_counter()
     records = strategy.expand(ctx)
