@@ -229,6 +229,7 @@ def test_journal_keeps_its_index_in_memory_and_on_disk(tmp_path):
 
 def test_a_round_journaled_before_a_takeover_field_existed_resumes_as_that_field_s_default(tmp_path):
     from adademo_lerobot.collectors.takeover import TakeoverArgs
+    from adademo_lerobot.loop.run_state import FIELDS_WITHOUT_A_PAST_DEFAULT, config_field_defaults
 
     defaults = TakeoverArgs().to_dict()
     for name in defaults:
@@ -236,16 +237,18 @@ def test_a_round_journaled_before_a_takeover_field_existed_resumes_as_that_field
         older = {k: v for k, v in defaults.items() if k != name}
         journal.start({"strategy": "budgeted", "demo_start": "takeover", "takeover": older})
         now = {"strategy": "budgeted", "demo_start": "takeover", "takeover": defaults}
-        RoundJournal(tmp_path / name, 1).start(now, field_defaults={"takeover": defaults})
         with pytest.raises(AdaDemoError, match="other settings"):  # without the defaults it is another round
             RoundJournal(tmp_path / name, 1).start(now)
+        if name in FIELDS_WITHOUT_A_PAST_DEFAULT["takeover"]:  # older rounds did otherwise: refused still
+            with pytest.raises(AdaDemoError, match="other settings"):
+                RoundJournal(tmp_path / name, 1).start(now, field_defaults=config_field_defaults({}))
+        else:
+            RoundJournal(tmp_path / name, 1).start(now, field_defaults=config_field_defaults({}))
     journal = RoundJournal(tmp_path / "changed", 1)
-    journal.start(
-        {"strategy": "budgeted", "takeover": {k: v for k, v in defaults.items() if k != "attempts"}}
-    )
-    changed = {"strategy": "budgeted", "takeover": defaults | {"attempts": defaults["attempts"] + 1}}
+    journal.start({"strategy": "budgeted", "takeover": {k: v for k, v in defaults.items() if k != "rule"}})
+    changed = {"strategy": "budgeted", "takeover": defaults | {"threshold": defaults["threshold"] + 1}}
     with pytest.raises(AdaDemoError, match="other settings"):  # a value set otherwise is still refused
-        RoundJournal(tmp_path / "changed", 1).start(changed, field_defaults={"takeover": defaults})
+        RoundJournal(tmp_path / "changed", 1).start(changed, field_defaults=config_field_defaults({}))
 
 
 def test_ledger_appends_whole_rounds_once(tmp_path):
@@ -438,7 +441,7 @@ def test_the_papers_e_is_picked_with_each_tasks_own_cap():
     assert target == 17 and plan == {"a": 17, "b": 3}
 
 
-def test_adademo_limits_a_task_whose_demonstrations_disagree_to_an_even_share(tmp_path):
+def test_adademo_limits_a_task_whose_demonstrations_disagree_to_an_even_share(tmp_path, caplog):
     """`--strategy.limit_disagreeing=true` on a real dataset: 10 scripted demonstrations of reach-v3 and of push-v3,
     push's actions then drawn at random in the files. A round where the policy fails every state: reach collects to
     CAP, push only to its even share of the budget; the round's settings journal the limit, and a resumed round
@@ -449,7 +452,7 @@ def test_adademo_limits_a_task_whose_demonstrations_disagree_to_an_even_share(tm
     from conftest import run_cli
 
     from adademo_lerobot.dataset.metadata import data_files, read_episode_metadata
-    from adademo_lerobot.strategies.adademo import AdaDemoStrategy
+    from adademo_lerobot.strategies.adademo import AdaDemoStrategy, disagreeing_task_caps
 
     root = tmp_path / "demo"
     run_cli(
@@ -469,9 +472,9 @@ def test_adademo_limits_a_task_whose_demonstrations_disagree_to_an_even_share(tm
         column = pa.FixedSizeListArray.from_arrays(pa.array(actions.ravel()), actions.shape[1])
         pq.write_table(frames.set_column(frames.schema.get_field_index("action"), "action", column), path)
 
-    def round_with(limit: bool, resumed: dict | None = None):
-        ctx = BudgetRound({"reach-v3": "F" * 100, "push-v3": "F" * 100}, budget=30, root=str(root))
-        strategy = AdaDemoStrategy(None, 30, 20, 100, 0.5, limit_disagreeing=limit)
+    def round_with(limit: bool, resumed: dict | None = None, budget: int = 30):
+        ctx = BudgetRound({"reach-v3": "F" * 100, "push-v3": "F" * 100}, budget=budget, root=str(root))
+        strategy = AdaDemoStrategy(None, budget, 20, 100, 0.5, limit_disagreeing=limit)
         settings = strategy.start(ctx, resumed)
         return settings, {r.task: (r.demos_added, r.max_demos_per_task) for r in strategy.expand(ctx)}
 
@@ -488,6 +491,30 @@ def test_adademo_limits_a_task_whose_demonstrations_disagree_to_an_even_share(tm
         assert demos == {"reach-v3": (4, 4), "push-v3": (20, 20)}
     _, demos = round_with(limit=True, resumed={"target_successes": 10})  # journaled without the flag
     assert demos == {"reach-v3": (20, 20), "push-v3": (20, 20)}
+    # A task whose demonstrations cannot be scored (none yet) is not limited, and the note says why.
+    three = BudgetRound(
+        dict.fromkeys(("reach-v3", "push-v3", "pick-place-v3"), "F" * 100), budget=30, root=str(root)
+    )
+    with caplog.at_level("INFO"):
+        assert disagreeing_task_caps(three, 30, 20) == {"push-v3": 10}
+    assert (
+        "note: pick-place-v3 is not limited: whether its demonstrations agree cannot be told (too few"
+        in caplog.text
+    )
+    assert "note: reach-v3 is not limited" not in caplog.text
+    # The share is rounded down: the limited tasks never get more than the budget between them.
+    assert round_with(limit=True, budget=31)[0]["limited_tasks"] == {"push-v3": 15}
+    # Through the round's journal: a round resumes with the flag either way, journaling what it started with
+    # (also when the flag limited no task).
+    for first, then in ((True, False), (False, True)):
+        journal = RoundJournal(tmp_path / f"journal-{first}", 1)
+        journal.start(round_with(first)[0])
+        resumed_settings, _ = round_with(then, resumed=journal.of_type("start")[0])
+        RoundJournal(tmp_path / f"journal-{first}", 1).start(resumed_settings)
+    journal = RoundJournal(tmp_path / "nothing-limited", 1)
+    journal.start({"strategy": "adademo", "target_successes": 10, "limited_tasks": {}})
+    resumed_settings, demos = round_with(False, resumed=journal.of_type("start")[0])
+    assert resumed_settings["limited_tasks"] == {} and demos == {"reach-v3": (20, 20), "push-v3": (20, 20)}
 
 
 def test_limit_disagreeing_without_a_budget_is_refused():

@@ -165,6 +165,17 @@ def test_task_only_allocates_like_adademo_from_fresh_states(dataset, ckpt):
     )
 
 
+def test_the_plan_names_the_tasks_whose_cap_is_lower_this_round():
+    from adademo_lerobot.loop.expand import plan_header
+
+    caps = {"door": 20, "hammer": 20, "pen": 15, "relocate": 20}
+    assert plan_header(2, 5, 20, caps) == "plan for round 2 (E=5, CAP=20, pen 15); nothing collected"
+    assert (
+        plan_header(1, 10, 20, dict.fromkeys(caps, 20))
+        == "plan for round 1 (E=10, CAP=20); nothing collected"
+    )
+
+
 def test_plan_only_prints_predictions_and_changes_nothing(dataset, ckpt):
     before = file_digests(dataset)
     proc = expand(

@@ -1,6 +1,8 @@
 """The imitability score (`dataset/imitability.py`): the share of a task's demonstration actions that the nearest
 states of its other demonstrations explain, which `adademo-report` reads as "can a policy imitate these?"."""
 
+import shutil
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -119,6 +121,25 @@ def test_a_real_dataset_scored_per_task_from_its_first_demonstrations(tmp_path):
         "note: reach-v3's first 11 demonstrations disagree" in more.stdout
         and "note: push-v3's" in more.stdout
     )
+    # A dataset with no episode yet (its info written, nothing recorded): no score, and no error either.
+    empty = tmp_path / "empty"
+    (empty / "meta").mkdir(parents=True)
+    shutil.copy(root / "meta" / "info.json", empty / "meta" / "info.json")
+    assert [(a.demonstrations, a.score) for a in demonstration_agreement(empty, ["reach-v3"])] == [(0, None)]
+    # States that are not numbers, or a frame index that does not count the frames: one line, not a traceback.
+    originals = {path: pq.read_table(path) for path in data_files(root)}
+    for change, says in (
+        (lambda t: t.set_column(t.schema.get_field_index("observation.state"), "observation.state",
+                                pa.array([[float("nan")] * 39] * len(t), pa.list_(pa.float32()))), "cannot be scored"),
+        (lambda t: t.set_column(t.schema.get_field_index("index"), "index",
+                                pa.array(t.column("index").to_numpy() + 1000)), "frame index is not 0, 1, 2"),
+    ):  # fmt: skip
+        for path, frames in originals.items():
+            pq.write_table(change(frames), path)
+        with pytest.raises(AdaDemoError, match=says):
+            demonstration_agreement(root, ["reach-v3", "push-v3"])
+    for path, frames in originals.items():
+        pq.write_table(frames, path)
     # Files whose actions cannot be read as rows of numbers (lists of different lengths): the score says so in one
     # line, and a collection's note does not fail the command.
     for path in data_files(root):

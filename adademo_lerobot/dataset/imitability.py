@@ -89,7 +89,10 @@ def read_actions_and_states(root: Path) -> tuple[np.ndarray, np.ndarray]:
         index.append(frames.column("index").to_numpy())
         actions.append(matrix(frames, "action", np.float32))
         states.append(matrix(frames, "observation.state", np.float64))
-    order = np.argsort(np.concatenate(index))
+    index = np.concatenate(index)
+    order = np.argsort(index)
+    if not np.array_equal(index[order], np.arange(len(index))):  # episodes' frame ranges are positions
+        raise ValueError("the frame index is not 0, 1, 2, ... over the data files")
     return np.concatenate(actions)[order], np.concatenate(states)[order]
 
 
@@ -129,18 +132,21 @@ def demonstration_agreement(
     episodes = episodes[episodes[COL_SOURCE] != POLICY_SOURCE]
     if tasks is None:
         tasks = list(dict.fromkeys(episodes["task"]))
+    if episodes.empty:
+        return [Agreement(task, 0, None, agreement_reading(None)) for task in tasks]
     try:
         actions, states = read_actions_and_states(root)
-    except (pa.ArrowException, ValueError) as err:  # e.g. an action that is not a list of numbers
+        results = []
+        for task in tasks:
+            mine = episodes[episodes["task"] == task].head(per_task)
+            ranges = [
+                range(a, b) for a, b in zip(mine["dataset_from_index"], mine["dataset_to_index"], strict=True)
+            ]
+            score = agreement_of(actions, states, ranges) if len(ranges) >= MIN_DEMONSTRATIONS else None
+            results.append(Agreement(task, len(ranges), score, agreement_reading(score)))
+    # e.g. an action that is not a list of numbers, a NaN state, episodes past the data files' frames
+    except (pa.ArrowException, ValueError, IndexError) as err:
         raise AdaDemoError(f"the actions and states of {root} cannot be scored ({err})") from None
-    results = []
-    for task in tasks:
-        mine = episodes[episodes["task"] == task].head(per_task)
-        ranges = [
-            range(a, b) for a, b in zip(mine["dataset_from_index"], mine["dataset_to_index"], strict=True)
-        ]
-        score = agreement_of(actions, states, ranges) if len(ranges) >= MIN_DEMONSTRATIONS else None
-        results.append(Agreement(task, len(ranges), score, agreement_reading(score)))
     return results
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from adademo_lerobot.collectors.takeover import TakeoverArgs, check_can_take_over
+from adademo_lerobot.collectors.takeover import check_can_take_over
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import exclusive_use
@@ -31,6 +31,7 @@ from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, rea
 from adademo_lerobot.dataset.shards import remove_shard_folders
 from adademo_lerobot.dataset.store import DemoDataset, recover_interrupted_write
 from adademo_lerobot.executors import make_executor
+from adademo_lerobot.loop.run_state import config_field_defaults
 from adademo_lerobot.strategies import planned_demos
 from adademo_lerobot.strategies.base import PlanningStrategy
 from adademo_lerobot.strategies.round_context import RoundContext
@@ -45,6 +46,12 @@ def journaled_round_settings(cfg) -> dict:
     if cfg.demo_start == "initial":
         return settings
     return settings | {"demo_start": cfg.demo_start, "takeover": cfg.takeover.to_dict()}
+
+
+def plan_header(round_index: int, target: int, cap: int, caps: dict[str, int]) -> str:
+    """The plan's first line: E, CAP, and the tasks whose CAP is lower this round (`limit_disagreeing`)."""
+    lower = "".join(f", {task} {n}" for task, n in caps.items() if n != cap)
+    return f"plan for round {round_index} (E={target}, CAP={cap}{lower}); nothing collected"
 
 
 def next_round(root: Path) -> int:
@@ -114,7 +121,7 @@ def plan(cfg, suite, ctx: RoundContext, strategy: PlanningStrategy) -> list[dict
                 "predicted_demos": planned_demos(target, sr, strategy.task_cap(task)),
             }
         )
-    print(f"plan for round {ctx.round_index} (E={target}, CAP={cap}); nothing collected")
+    print(plan_header(ctx.round_index, target, cap, {t: strategy.task_cap(t) for t in suite.tasks}))
     body = [
         (
             r["task"],
@@ -231,7 +238,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
             "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
             **journaled_round_settings(cfg),
         },
-        field_defaults={"takeover": TakeoverArgs().to_dict()},
+        field_defaults=config_field_defaults({}),
     )
     started_at = time.perf_counter()
     records = strategy.expand(ctx)

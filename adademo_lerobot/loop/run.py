@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from adademo_lerobot.collectors.takeover import TakeoverArgs, check_can_take_over
+from adademo_lerobot.collectors.takeover import check_can_take_over
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import atomic_write_text, exclusive_use
 from adademo_lerobot.dataset.features import dataset_features
@@ -156,13 +156,7 @@ def run(cfg: RunConfig, on_ledger_written: Callable[[int], None] | None = None) 
     suite, start = checked_suite_and_start(cfg, run_dir)  # everything refused before anything is written
     run_dir.mkdir(parents=True, exist_ok=True)
     with exclusive_use(run_dir, "adademo-run"), Episodes(cfg, suite) as episodes:
-        settings = run_settings(cfg, suite.config.to_dict())
-        defaults = {
-            "strategy": type(cfg.strategy)().to_dict(),
-            "suite": type(suite.config)().to_dict(),
-            "takeover": TakeoverArgs().to_dict(),
-        }
-        state = RunState(run_dir, settings, on_stage=print, field_defaults=defaults)
+        state = RunState(run_dir, run_settings(cfg, suite.config.to_dict()), on_stage=print)
         if cfg.dataset.repo_id is not None:  # the user's data
             data = RunData.of_stage(state.stage("start", begin_from, cfg, start, run_dir))
         else:

@@ -10,36 +10,32 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import atomic_write_text
+from adademo_lerobot.strategies import StrategyConfig
+from adademo_lerobot.suites import SuiteConfig
 
 
 class RunState:
     """Finished stages of a run, plus the settings that define it (a rerun must keep them). `on_stage` hears
     `[done] NAME` for a stage an earlier invocation finished and `[run]  NAME` for one that runs (the command
-    prints them). `field_defaults`: the fields of the settings that are configs (strategy, suite, takeover) at
-    their defaults, which a run started before a field existed ran as (a field's default keeps the behaviour from
-    before the field)."""
+    prints them). A run started before a field of its strategy, suite or takeover settings existed ran as that
+    field's default (`config_field_defaults`)."""
 
-    def __init__(
-        self,
-        run_dir: Path,
-        settings: dict,
-        on_stage: Callable[[str], None] | None = None,
-        field_defaults: dict[str, dict] | None = None,
-    ):
+    def __init__(self, run_dir: Path, settings: dict, on_stage: Callable[[str], None] | None = None):
         self.path = run_dir / "run_state.json"
         self._on_stage = on_stage or (lambda line: None)
         if self.path.exists():
             state = json.loads(self.path.read_text())
             for key, default in SETTINGS_ADDED_LATER.items():  # a run started before the setting existed
                 state["settings"].setdefault(key, default)
-            for name, defaults in (field_defaults or {}).items():
+            for name, defaults in config_field_defaults(settings).items():
                 journaled, current = state["settings"].get(name), settings.get(name)
                 configs = isinstance(journaled, dict) and isinstance(current, dict)
                 if configs and journaled.get("type") == current.get("type"):
-                    for key, default in defaults.items():
-                        journaled.setdefault(key, default)  # started before the field existed
+                    for key in current.keys() - journaled.keys() & defaults.keys():  # added since it started
+                        journaled[key] = defaults[key]
             legacy, current = state["settings"].get("strategy"), settings.get("strategy")
             if isinstance(legacy, str) and isinstance(current, dict) and legacy == current.get("type"):
                 # Started before 0.3, when the strategy was a name and its values shared top-level flags that
@@ -111,6 +107,24 @@ FIXED_SETTINGS = (
 )
 # Settings that runs started by an earlier release do not record, with the value those runs used.
 SETTINGS_ADDED_LATER = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}
+# Fields of the config settings whose default does not do what runs journaled before the field did: such a run
+# is refused rather than resumed as the default. (Takeover corrections retried and had no fallback then.)
+FIELDS_WITHOUT_A_PAST_DEFAULT = {"takeover": ("attempts", "fallback")}
+
+
+def config_field_defaults(settings: dict) -> dict[str, dict]:
+    """Per config setting (the takeover's, and the strategy's and suite's of the type `settings` name): the
+    fields a run or round journaled before they existed ran as, their defaults (a new field's default keeps the
+    behaviour from before it, docs/extending.md), but `FIELDS_WITHOUT_A_PAST_DEFAULT`."""
+    defaults = {"takeover": TakeoverArgs().to_dict()}
+    for name, registry in (("strategy", StrategyConfig), ("suite", SuiteConfig)):
+        kind = settings.get(name, {}).get("type") if isinstance(settings.get(name), dict) else None
+        if kind in registry.get_known_choices():
+            defaults[name] = registry.get_choice_class(kind)().to_dict()
+    return {
+        name: {k: v for k, v in fields.items() if k not in FIELDS_WITHOUT_A_PAST_DEFAULT.get(name, ())}
+        for name, fields in defaults.items()
+    }
 
 
 def saved_stage(run_dir: Path, name: str) -> dict | None:

@@ -9,7 +9,6 @@ rounds' evaluations) fits the budget, as the paper sets E "according to the budg
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass, field
 
 from adademo_lerobot.core.episodes import TaskRoundRecord
@@ -66,8 +65,8 @@ class AdaDemoConfig(StrategyConfig):
     # With a budget: weight of an earlier round's evaluation outcomes per round since, in the success estimate.
     posterior_decay: float = DEFAULT_DECAY
     # With a budget: a task whose first demonstrations disagree with each other (imitability score below 0.1,
-    # `dataset/imitability.py`) gets at most an even share of the round, budget / tasks, instead of CAP; the rest
-    # of the budget goes to the tasks a policy can learn from (principle A assumes more demonstrations help).
+    # `dataset/imitability.py`) gets at most an even share of the round, budget // tasks, instead of CAP; the
+    # rest of the budget goes to the tasks a policy can learn from (principle A assumes more demonstrations help).
     limit_disagreeing: bool = False
 
     def validate(self) -> None:
@@ -135,6 +134,8 @@ class AdaDemoStrategy:
         else:
             limited = disagreeing_task_caps(ctx, self.budget, self.cap) if self.limit_disagreeing else {}
         self.caps = {**dict.fromkeys(ctx.tasks, self.cap), **limited}
+        # A resumed round journals what it started with (the journal compares the two), a new one by the flag.
+        journals_limits = "limited_tasks" in resumed if resumed else self.limit_disagreeing
         if self.target_successes is None and self.budget is not None:
             if resumed and resumed.get("target_successes") is not None:
                 self.target_successes = resumed["target_successes"]
@@ -155,7 +156,7 @@ class AdaDemoStrategy:
             "max_demos_per_task": self.cap,
             "budget": self.budget,
             "max_eval_episodes_per_task": self.max_eval_episodes_per_task,
-            **({"limited_tasks": limited} if self.limit_disagreeing or limited else {}),
+            **({"limited_tasks": limited} if journals_limits else {}),
         }
 
     def expand(self, ctx: InnerLoop) -> list[TaskRoundRecord]:
@@ -170,11 +171,21 @@ class AdaDemoStrategy:
 
 
 def disagreeing_task_caps(ctx: InnerLoop, budget: int, cap: int) -> dict[str, int]:
-    """The CAP of each task whose first demonstrations disagree with each other: an even share of the budget."""
-    share = min(cap, math.ceil(budget / len(ctx.tasks)))
-    limited = {a.task: share for a in demonstration_agreement(ctx.root, ctx.tasks) if a.disagrees}
-    for task in limited:
-        log.info(
-            "note: %s's demonstrations disagree with each other: at most %d new ones this round", task, share
-        )
+    """The CAP of each task whose first demonstrations disagree with each other: an even share of the budget
+    (rounded down, so that the limited tasks' caps never add up to more than the budget)."""
+    share = min(cap, max(1, budget // len(ctx.tasks)))
+    scored = {a.task: a for a in demonstration_agreement(ctx.root, ctx.tasks)}
+    limited = {t: share for t in ctx.tasks if t in scored and scored[t].disagrees}
+    for task in ctx.tasks:
+        if task in limited:
+            log.info(
+                "note: %s's demonstrations disagree with each other: at most %d new ones this round",
+                task,
+                share,
+            )
+        elif task not in scored or scored[task].score is None:
+            why = scored[task].reading if task in scored else "the dataset records no observation.state"
+            log.info(
+                "note: %s is not limited: whether its demonstrations agree cannot be told (%s)", task, why
+            )
     return limited
