@@ -821,7 +821,7 @@ def write_report(
             for a, c in comparisons.items()
         )
         + ".",
-        *flat_uniform_lines(runs, seeds_of["uniform"]),
+        *flat_uniform_lines(runs, sorted({s for c in comparisons.values() for s in c.seeds})),
         "",
         "## What a person pays: episodes, and the break-even rollout cost c*",
         "",
