@@ -45,7 +45,7 @@ evaluated is a fresh initial state), so a person at a robot runs it too (`adadem
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -62,7 +62,6 @@ from adademo_lerobot.strategies.estimates import (
 
 if TYPE_CHECKING:
     from adademo_lerobot.strategies.algorithm import InnerLoop
-    from adademo_lerobot.strategies.budgeted import BudgetedStrategy
     from adademo_lerobot.strategies.round_context import RoundContext
 
 RANKINGS = ("random", "knn")
@@ -115,7 +114,24 @@ class FailureRanker:
         return knn_failure_vote(np.stack(self.states), failed, query, NEIGHBOURS)
 
 
-def expand_paying_for_rollouts(strategy: BudgetedStrategy, ctx: InnerLoop) -> list[TaskRoundRecord]:
+class PayingStrategy(Protocol):
+    """What a round that pays for its rollouts reads of its strategy (`budgeted.BudgetedStrategy` with a rollout
+    cost)."""
+
+    name: str
+    budget: int
+    cap: int
+    max_eval_episodes_per_task: int
+    posterior_decay: float
+    rollout_cost: float
+    failure_worth: float
+    optimism: float
+    rank_states: str
+    probe_unsure: bool
+    split_episodes: bool
+
+
+def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list[TaskRoundRecord]:
     tasks, cap, c = ctx.tasks, strategy.cap, strategy.rollout_cost
     threshold = c / (strategy.failure_worth - 1)  # a task is worth evaluating while p >= c / (W - 1)
     posterior = {
