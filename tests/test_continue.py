@@ -162,6 +162,22 @@ def test_in_place_on_a_dataset_recorded_elsewhere_with_the_suite_flags(
     assert "(demos)" in (run_dir / "report" / "report.md").read_text()
 
 
+def test_a_copy_left_by_an_interrupted_start_is_replaced_whole(reach_push_dataset, tmp_path):
+    """Killed after the copy was renamed into RUN_DIR/dataset but before the start stage was recorded: the rerun
+    copies again over it (it failed with 'Directory not empty' on every rerun)."""
+    from adademo_lerobot.loop.start import Start, prepare_dataset
+    from adademo_lerobot.suites import SuiteConfig
+
+    run_dataset = tmp_path / "run" / "dataset"
+    (run_dataset / "meta").mkdir(parents=True)
+    (run_dataset / "meta" / "stale.json").write_text("{}")  # what the interrupted copy left
+    start = Start(reach_push_dataset, None, SuiteConfig.get_choice_class("metaworld")(), None, None, None)
+    root, digests = prepare_dataset(start, True, run_dataset)
+    assert root == run_dataset and not (run_dataset / "meta" / "stale.json").exists()
+    assert file_digests(run_dataset) == digests == file_digests(reach_push_dataset)
+    assert not (tmp_path / "run" / ".dataset.copying").exists()
+
+
 @pytest.mark.slow
 def test_bad_starting_points_get_one_error_and_nothing_is_written(reach_push_dataset, checkpoint, tmp_path):
     run_dir = tmp_path / "run"

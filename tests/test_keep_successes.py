@@ -95,6 +95,57 @@ def test_two_rounds_keep_every_successful_rollout_once_and_it_replays(reach, tmp
     np.testing.assert_allclose(half.sum(), 1.0)
 
 
+def test_kept_rollouts_in_a_dagger_dataset_are_the_policys_frames(reach, tmp_path):
+    """On a dataset with LeRobot's `intervention` frames (DAgger data), a kept rollout's frames are the policy's
+    own (False), so training leaves them out at --autonomous_weight=0 as it does without the flags; the
+    expert's demonstrations are the person's (True)."""
+    from lerobot.datasets.dataset_tools import add_features
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from adademo_lerobot.dataset.interventions import intervention_flags
+
+    source, ckpt = reach
+    root = tmp_path / "dagger"
+    frames = LeRobotDataset("local/demo", root=source).num_frames
+    flag = {"dtype": "bool", "shape": [1], "names": None}
+    add_features(
+        LeRobotDataset("local/demo", root=source),
+        {"intervention": (np.ones((frames, 1), dtype=bool), flag)},
+        output_dir=root,
+        repo_id="local/demo",
+    )
+    # LeRobot 0.6.1's add_features writes no per-episode stats for the feature it adds, which any append (LeRobot's
+    # own too) then makes unreadable; a DAgger dataset recorded by lerobot-rollout has them: give them here.
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    for path in (root / "meta" / "episodes").rglob("*.parquet"):
+        table = pq.read_table(path)
+        n = len(table)
+        ones = pa.array([[1.0]] * n, pa.list_(pa.float64()))
+        stats = {
+            f"stats/intervention/{k}": ones for k in ("min", "max", "mean", "q01", "q10", "q50", "q90", "q99")
+        }
+        stats["stats/intervention/std"] = pa.array([[0.0]] * n, pa.list_(pa.float64()))
+        lengths = [[int(x)] for x in table.column("length").to_pylist()]
+        stats["stats/intervention/count"] = pa.array(lengths, pa.list_(pa.int64()))
+        for name, column in stats.items():
+            table = table.append_column(name, column)
+        pq.write_table(table, path)
+    run_cli("adademo-expand", *args(root, ckpt))
+    eps = read_episode_metadata(root)
+    flags = intervention_flags(root)
+    new = eps[eps["adademo/round"] == 1]
+    kept, experts = new[new["adademo/source"] == "policy"], new[new["adademo/source"] == "adademo"]
+    assert len(kept) >= 1 and len(experts) >= 1
+    for rows, person in ((kept, False), (experts, True)):
+        for a, b in zip(rows["dataset_from_index"], rows["dataset_to_index"], strict=True):
+            assert (flags[a:b] == person).all()
+    units = imitation_units(root, eps, 0.0)
+    assert not set(kept.index) & set(units.index) and set(experts.index) <= set(units.index)
+    assert LeRobotDataset("local/demo", root=root).num_episodes == len(eps)
+
+
 def test_a_killed_round_resumes_to_the_dataset_an_uninterrupted_round_makes(reach, tmp_path):
     """Killed once a success is journaled and before anything of the round is committed (one commit at the
     task's end): the rerun runs the journaled successes again and keeps them, in the same order."""

@@ -61,8 +61,13 @@ def test_act_checkpoint_is_standard_and_reloads_to_identical_actions(act_run, re
     }
     config = json.loads((ckpt / "config.json").read_text())
     assert config["type"] == "act" and config["normalization_mapping"]["ENV"] == "MEAN_STD"
-    train_cfg = json.loads((ckpt / "train_config.json").read_text())
-    assert train_cfg["sampler"] == "trajectory" and train_cfg["steps"] == 4
+    # LeRobot's own train config reads it back (ours are beside it, in adademo_train.json).
+    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.policies.act.configuration_act import ACTConfig  # noqa: F401  (registers `act`, as lerobot-train)
+
+    train_cfg = TrainPipelineConfig.from_pretrained(ckpt)
+    assert type(train_cfg) is TrainPipelineConfig and train_cfg.steps == 4 and train_cfg.policy.type == "act"
+    assert "sampler" not in json.loads((ckpt / "train_config.json").read_text())
     a1, a2 = first_action(ckpt, reach_push_dataset), first_action(ckpt, reach_push_dataset)
     np.testing.assert_array_equal(a1, a2)
     assert a1.shape == (1, 4)
@@ -71,6 +76,7 @@ def test_act_checkpoint_is_standard_and_reloads_to_identical_actions(act_run, re
     assert not np.array_equal(a1, a_step2)
     info = json.loads((ckpt / "adademo_train.json").read_text())
     assert info["episodes_per_task"] == {"reach-v3": 3, "push-v3": 3}
+    assert info["sampler"] == "trajectory" and info["lr_schedule"] in ("preset", "cosine")
 
 
 def test_diffusion_learns_and_reloads(reach_push_dataset, tmp_path):
@@ -108,6 +114,10 @@ def test_fine_tune_from_a_stock_lerobot_train_checkpoint(reach_push_dataset, sto
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     assert json.loads((ckpt / "config.json").read_text())["dim_model"] == 32
     assert first_action(ckpt, reach_push_dataset).shape == (1, 4)
+    # Its inputs stay as the stock checkpoint learned them: our ENV normalization is for training from scratch.
+    stock = json.loads((stock_act_checkpoint / "config.json").read_text())["normalization_mapping"]
+    assert "ENV" not in stock
+    assert json.loads((ckpt / "config.json").read_text())["normalization_mapping"] == stock
 
 
 @pytest.mark.slow

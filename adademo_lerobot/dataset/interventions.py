@@ -127,11 +127,12 @@ def imitation_units(root: str | Path, episodes: pd.DataFrame, autonomous_weight:
     return units
 
 
-def carried_frame_values(features: dict) -> dict[str, np.ndarray]:
+def carried_frame_values(features: dict, by_policy: bool = False) -> dict[str, np.ndarray]:
     """Values our writers add to every frame they write, for the dataset's features they do not produce: the
-    `intervention` flag, True (what we write is the person's or the expert's, never the policy's own)."""
+    `intervention` flag, True for the person's or the expert's frames, False for a kept policy rollout's
+    (`--keep_successes`: the policy's own frames, which training weighs by `--autonomous_weight`)."""
     if has_interventions(features):
-        return {INTERVENTION_FEATURE: np.array([True], dtype=bool)}
+        return {INTERVENTION_FEATURE: np.array([not by_policy], dtype=bool)}
     return {}
 
 

@@ -524,8 +524,10 @@ class DemoDataset:
         # One "Map" bar per episode otherwise; disabled after opening, whose loader turns the bars back on.
         datasets.disable_progress_bars()
         indices = []
-        # Features we do not produce but carry, e.g. `intervention`: True (our frames are never the policy's own).
-        carried = carried_frame_values(dataset.meta.features)
+        # Features we do not produce but carry, e.g. `intervention`: False only in a kept policy rollout.
+        carried = {
+            by_policy: carried_frame_values(dataset.meta.features, by_policy) for by_policy in (False, True)
+        }
         # A robot view's dataset (`--suite.view=robot`) has no environment_state: the expert read it, the
         # dataset keeps what the robot records.
         unrecorded = {ENV_STATE_KEY} - set(dataset.meta.features)
@@ -533,7 +535,7 @@ class DemoDataset:
             for demo in demos:
                 for frame in demo.frames:
                     kept = {k: v for k, v in frame.items() if k not in unrecorded} if unrecorded else frame
-                    dataset.add_frame({**carried, **kept, "task": demo.task})
+                    dataset.add_frame({**carried[demo.by_policy], **kept, "task": demo.task})
                 indices.append(dataset.meta.total_episodes)
                 columns = provenance_columns(demo, round_index, source, collector, producer)
                 with _saving_extra_columns(dataset, columns):

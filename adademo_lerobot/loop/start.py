@@ -304,6 +304,8 @@ def prepare_dataset(start: Start, copy: bool, run_dataset: Path) -> tuple[Path, 
         tmp = run_dataset.with_name(f".{run_dataset.name}.copying")
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.copytree(start.source_root, tmp, ignore=shutil.ignore_patterns(".cache"))
+        # A copy an interrupted invocation renamed into place before its start stage was recorded: replaced whole.
+        shutil.rmtree(run_dataset, ignore_errors=True)
         os.replace(tmp, run_dataset)
         log.info(
             "copied %s to %s (%d files); the original stays unchanged",

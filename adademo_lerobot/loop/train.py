@@ -99,6 +99,14 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
     log_freq: int = 200
     save_freq: int = 1000
 
+    def _save_pretrained(self, save_directory: Path) -> None:
+        """LeRobot's `train_config.json` with LeRobot's fields only, so that stock `TrainPipelineConfig` reads it
+        back (`lerobot-train --resume`); ours are in `adademo_train.json` beside it."""
+        stock = TrainPipelineConfig.__new__(TrainPipelineConfig)  # the values are copied, not re-derived
+        for f in dataclasses.fields(TrainPipelineConfig):
+            setattr(stock, f.name, getattr(self, f.name))
+        TrainPipelineConfig._save_pretrained(stock, save_directory)
+
     def use_pretrained_policy(self, path: str, overrides: list[str] | None = None) -> None:
         """Start from the checkpoint at `path` (`--policy.path`), its config changed by `overrides`
         (`--policy.dim_model=...`). The command line calls this; as a library, set `policy` and its
@@ -111,6 +119,11 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
         check_no_unimplemented_flags(self)
         if self.steps < 1 or self.batch_size < 1:
             raise AdaDemoError(f"--steps and --batch_size must be >= 1 (got {self.steps}, {self.batch_size})")
+        if self.save_freq < 1:
+            raise AdaDemoError(
+                f"--save_freq must be >= 1 (a checkpoint every that many steps; the last step is always saved), "
+                f"got {self.save_freq}"
+            )
         if self.output_dir is None:
             raise AdaDemoError("--output_dir is required")
         self.output_dir = Path(self.output_dir)
@@ -140,8 +153,10 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
                 f"unsupported --policy.type={self.policy.type!r}; choose one of {', '.join(POLICY_TYPES)}"
             )
         self.policy.push_to_hub = False
-        # ENV features are not normalized by LeRobot's ACT/Diffusion by default; the task one-hot lives there.
-        self.policy.normalization_mapping.setdefault("ENV", NormalizationMode.MEAN_STD)
+        # ENV features are not normalized by LeRobot's ACT/Diffusion by default; the task one-hot lives there. A
+        # checkpoint fine-tuned keeps its own mapping: its weights learned the inputs as they were.
+        if self.policy.pretrained_path is None:
+            self.policy.normalization_mapping.setdefault("ENV", NormalizationMode.MEAN_STD)
         self.job_name = self.job_name or f"adademo_{self.policy.type}"
         if self.use_policy_training_preset:
             self.optimizer = self.policy.get_optimizer_preset()
@@ -283,6 +298,9 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         "sampler": cfg.sampler,
         "min_task_weight": cfg.min_task_weight,
         "sampler_alpha": cfg.sampler_alpha,
+        "lr_schedule": cfg.lr_schedule,
+        "in_memory": cfg.in_memory,
+        "torch_threads": cfg.torch_threads,
         **({"autonomous_weight": cfg.autonomous_weight} if flags is not None or kept_rollouts else {}),
         "episodes": int(len(episodes)),
         "frames": int(dataset.num_frames),
@@ -398,6 +416,11 @@ def weighted_loader(cfg: AdaDemoTrainConfig, dataset, episodes, scheme, step: in
     )
     if cfg.in_memory and InMemoryFrames.supports(dataset):
         frames, loader_args = InMemoryFrames(dataset), {"collate_fn": whole_batch, "num_workers": 0}
+        if cfg.num_workers > 0:
+            log.warning(
+                "--num_workers=%d is not used: the batches come from memory (--in_memory=false loads them with "
+                "workers)", cfg.num_workers,
+            )  # fmt: skip
     else:
         frames = dataset
         loader_args = {"num_workers": cfg.num_workers}
