@@ -79,6 +79,17 @@ def test_cosine_lr_schedule_decays_to_one_percent_of_the_policys_rate(tmp_path):
     assert (cosine.scheduler.num_warmup_steps, cosine.scheduler.num_decay_steps) == (10, 500)
 
 
+def test_a_save_frequency_under_one_is_refused_before_training(tmp_path):
+    argv = ["--policy.type=act", "--dataset.repo_id=x/y", f"--dataset.root={tmp_path}", "--steps=5"]
+    for freq in (0, -3):
+        cfg = parse_config(
+            AdaDemoTrainConfig, [*argv, f"--output_dir={tmp_path / str(freq)}", f"--save_freq={freq}"]
+        )
+        with pytest.raises(AdaDemoError, match=f"--save_freq must be >= 1 .*got {freq}"):
+            cfg.validate()
+    parse_config(AdaDemoTrainConfig, [*argv, f"--output_dir={tmp_path / 'one'}", "--save_freq=1"]).validate()
+
+
 @pytest.mark.parametrize(
     "recipe",
     sorted(p.name for p in RECIPE.parent.glob("*.yaml") if p.name != "continue_from_checkpoint.yaml"),
