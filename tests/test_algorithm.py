@@ -433,6 +433,19 @@ def test_the_papers_e_is_picked_to_fit_a_budget():
     assert target == 8 and plan == {"a": 8, "b": 8}  # SR 0 gets CAP; past E=8 CAP stops the total growing
 
 
+def test_a_budget_even_e_1_overruns_is_said(caplog):
+    from adademo_lerobot.strategies.adademo import AdaDemoStrategy
+
+    ctx = BudgetRound({f"t{i}": "F" * 10 for i in range(10)}, budget=5)  # no earlier round: every SR 0.5
+    with caplog.at_level("INFO"):
+        AdaDemoStrategy(None, 5, 20, 100, 0.5).start(ctx, None)
+    assert "note: even E=1 predicts 10 demonstrations, over the budget of 5" in caplog.text
+    caplog.clear()
+    with caplog.at_level("INFO"):
+        AdaDemoStrategy(None, 10, 20, 100, 0.5).start(ctx, None)
+    assert "picked E=1" in caplog.text and "note:" not in caplog.text
+
+
 def test_the_papers_e_is_picked_with_each_tasks_own_cap():
     from adademo_lerobot.strategies.adademo import pick_target_successes
 
@@ -515,6 +528,40 @@ def test_adademo_limits_a_task_whose_demonstrations_disagree_to_an_even_share(tm
     journal.start({"strategy": "adademo", "target_successes": 10, "limited_tasks": {}})
     resumed_settings, demos = round_with(False, resumed=journal.of_type("start")[0])
     assert resumed_settings["limited_tasks"] == {} and demos == {"reach-v3": (20, 20), "push-v3": (20, 20)}
+
+
+def test_task_only_refuses_plan_episodes_with_a_budget_that_would_ignore_them():
+    from adademo_lerobot.strategies.task_only import TaskOnlyConfig
+
+    config = TaskOnlyConfig(budget=[20], max_demos_per_task=[10], plan_episodes_per_task=5)
+    with pytest.raises(AdaDemoError, match="plan_episodes_per_task sets the evaluations without a budget"):
+        config.validate()
+    TaskOnlyConfig(budget=[20], max_demos_per_task=[10]).validate()
+    TaskOnlyConfig(target_successes=[5], max_demos_per_task=[10], plan_episodes_per_task=5).validate()
+
+
+def test_knn_vote_is_the_failure_share_of_the_nearest_states():
+    import numpy as np
+
+    from adademo_lerobot.strategies.estimates import knn_failure_vote
+
+    # Failures where x > 0, the second feature is noise on another scale, the third never varies.
+    rng = np.random.default_rng(0)
+    known = np.stack([np.linspace(-1, 1, 40), 100 * rng.standard_normal(40), np.ones(40)], axis=1)
+    failed = (known[:, 0] > 0).astype(float)
+    query = np.array([[0.9, 0.0, 1.0], [-0.9, 0.0, 1.0]])
+    vote = knn_failure_vote(known[:, [0, 2]], failed, query[:, [0, 2]], 5)
+    np.testing.assert_array_equal(vote, [1.0, 0.0])
+    # Ties go to the earlier known state: the same on every machine and every resume.
+    twins = np.array([[0.0], [0.0], [0.0], [1.0]])
+    np.testing.assert_array_equal(
+        knn_failure_vote(twins, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros((1, 1)), 2), [0.5]
+    )
+    # No feature varies: every known state is as near as any, so the vote is the failure share of them all.
+    same = np.ones((20, 3))
+    np.testing.assert_allclose(
+        knn_failure_vote(same, np.arange(20) % 2.0, np.ones((3, 3)), 5), [0.5, 0.5, 0.5]
+    )
 
 
 def test_limit_disagreeing_without_a_budget_is_refused():

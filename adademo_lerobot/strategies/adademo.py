@@ -62,7 +62,8 @@ class AdaDemoConfig(StrategyConfig):
     # Bound on evaluation episodes per task and round, so a task the expert cannot solve still ends
     # (default 2 x (E + CAP)).
     max_eval_episodes_per_task: int | None = None
-    # With a budget: weight of an earlier round's evaluation outcomes per round since, in the success estimate.
+    # With a budget, in the success estimate: the last round's outcomes count fully, each round before it this
+    # much less per round.
     posterior_decay: float = DEFAULT_DECAY
     # With a budget: a task whose first demonstrations disagree with each other (imitability score below 0.1,
     # `dataset/imitability.py`) gets at most an even share of the round, budget // tasks, instead of CAP; the
@@ -147,6 +148,12 @@ class AdaDemoStrategy:
                     self.budget, self.target_successes,
                     ", ".join(f"{t} {n}" for t, n in plan.items()), sum(plan.values()),
                 )  # fmt: skip
+                if sum(plan.values()) > self.budget:  # E is at least 1: the paper's rule has nothing smaller
+                    log.info(
+                        "note: even E=1 predicts %d demonstrations, over the budget of %d: the round may spend "
+                        "more (a lower --strategy.max_demos_per_task bounds it; --strategy.type=budgeted spends "
+                        "exactly B)", sum(plan.values()), self.budget,
+                    )  # fmt: skip
         self.target_successes = self.target_successes or DEFAULT_TARGET_SUCCESSES
         self.max_eval_episodes_per_task = self.max_eval_episodes_per_task or default_eval_bound(
             self.target_successes, self.cap
@@ -172,7 +179,7 @@ class AdaDemoStrategy:
 
 def disagreeing_task_caps(ctx: InnerLoop, budget: int, cap: int) -> dict[str, int]:
     """The CAP of each task whose first demonstrations disagree with each other: an even share of the budget
-    (rounded down, so that the limited tasks' caps never add up to more than the budget)."""
+    (rounded down, so that the limited tasks' caps add up to no more than the budget; at least 1)."""
     share = min(cap, max(1, budget // len(ctx.tasks)))
     scored = {a.task: a for a in demonstration_agreement(ctx.root, ctx.tasks)}
     limited = {t: share for t in ctx.tasks if t in scored and scored[t].disagrees}

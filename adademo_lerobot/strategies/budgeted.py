@@ -1,12 +1,13 @@
 """`--strategy.type=budgeted --strategy.budget=B`: AdaDemo's principles A and B with a round budget instead of E.
 
 The paper sets E "according to the budget" by hand, and a task's share follows from a handful of evaluation
-episodes. Here the round spends exactly B demonstrations (fewer only where the expert fails every draw or a
-task reaches CAP, and then it says so):
+episodes. Here the round spends exactly B demonstrations (fewer only where the expert fails every draw, a task
+reaches CAP, or the evaluation bound finds too few failures, and then it says so):
 
 - each task's success rate is a Beta posterior over every expansion-round evaluation outcome seen so far (the
-  earlier rounds' records, each round's weight halved per round since, as the policy changed; never the fixed
-  evaluation set, which is the test set), updated with every outcome of this round;
+  earlier rounds' records: the last round's count fully, each round before it `posterior_decay` less per round,
+  as the policy changed; never the fixed evaluation set, which is the test set), updated with every outcome of this
+  round;
 - the budget is split across tasks in proportion to each task's expected failure rate (the posterior mean of
   1 - SR), never more than CAP per task (`allocate`), and re-split after every evaluation batch;
 - demonstrations come only from initial states where the policy failed (principle B): the task furthest below
@@ -76,7 +77,7 @@ class BudgetedConfig(StrategyConfig):
     max_demos_per_task: PerRound = per_round(50)
     # Bound on evaluation episodes per task and round (default 2 x (10 + CAP)).
     max_eval_episodes_per_task: int | None = None
-    # Weight of an earlier round's evaluation outcomes per round since (1: all count the same).
+    # The last round's evaluation outcomes count fully, each round before it this much less (1: all the same).
     posterior_decay: float = DEFAULT_DECAY
     # What a policy rollout costs, in demonstrations (a robot: about 1, a scene reset each): the budget then pays
     # for rollouts too, and evaluation goes only where a found failure is worth its rollouts (strategies/costed.py).

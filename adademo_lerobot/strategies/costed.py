@@ -7,15 +7,16 @@ is worth its rollouts:
 
 - each task's failure rate p has a Beta posterior (as the budgeted strategy keeps it: the earlier rounds'
   outcomes, decayed, then this round's); its optimistic value u, the posterior's 80th percentile
-  (`--strategy.optimism`), decides. At 0.8 three straight successes close a task from no prior; at 0.9 it takes
-  five (a 62 % task closes on luck with probability 0.24 at 0.8, 0.09 at 0.9; a solved task costs two rollouts
-  more);
+  (`--strategy.optimism`), decides. From no prior, with c = 1 and W = 3, at 0.8 two straight successes close a
+  task for evaluation and three end its probes (`probe_unsure`, below); at 0.9 three and five (a 62 % task ends its
+  probes on luck with probability 0.24 at 0.8, 0.09 at 0.9; a solved task costs two rollouts more);
 - a task closes for evaluation once even u makes the expected rollout cost of its next failure, c / u, exceed what
   a demonstration at a failure is worth beyond one from a random state, W - 1 demonstrations (W =
   `--strategy.failure_worth`: the paper reaches Uniform's result with about a third of the data, W = 3). A task
   that keeps succeeding closes after a rollout or two instead of being evaluated to the bound;
 - the open task with the highest u is evaluated next (its failures are the likeliest cheap, principle A wants
-  demos there, and a task not yet tried has a high u, so every task is probed before one takes the round), one
+  demos there; a task not yet tried has u = 0.8 under Beta(1, 1), so it comes before every task whose u is lower,
+  but a task that keeps failing stays above it and can take most of the round: `split_episodes` below), one
   state at first and as many at once as it has found failures this round (at most `--eval.batch_size`);
 - once no task is worth evaluating, the rest of the budget buys demonstrations from fresh initial states with no
   rollout (principle A alone): a fresh state is a failure with probability p, so such a demonstration is worth
@@ -179,7 +180,7 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
             seed = next_states(t, 1)[0]
         else:
             seed = fresh_state_seed(ctx.seed, ctx.round_index, t, fresh_draws[t])
-            fresh_draws[t] += 1
+        fresh_draws[t] += 1
         records[t].extra["fresh_demos"] += ctx.collect_demo(t, seed, records[t])
         ctx.progress(t, records[t])
 

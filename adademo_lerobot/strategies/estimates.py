@@ -1,6 +1,6 @@
 """A task's success rate as the strategies estimate it: a Beta posterior over the expansion rounds' evaluation
-outcomes (never the fixed evaluation set, which is the test set), an earlier round weighing less per round since
-(the policy was retrained in between)."""
+outcomes (never the fixed evaluation set, which is the test set): the last round's count fully, each round before it
+weighs `decay` less per round (the policy was retrained in between)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 from adademo_lerobot.dataset.ledger import read_round_evaluations
 
-DEFAULT_DECAY = 0.5  # weight of a round's outcomes per round since
+DEFAULT_DECAY = 0.5  # weight of a round's outcomes per round before the last
 
 
 def prior_from_earlier_rounds(
@@ -59,12 +59,16 @@ def count_outcomes(ctx, task: str, record, outcomes, posterior, answer_failure) 
 
 def knn_failure_vote(known: np.ndarray, failed: np.ndarray, query: np.ndarray, k: int) -> np.ndarray:
     """Each query state's share of failures among its k nearest known states (features standardized on the
-    known states; constant features dropped)."""
+    known states; constant features dropped; ties go to the earlier known state). Where no feature varies, every
+    known state is as near as any other: the share of failures among them all."""
     mean, std = known.mean(0), known.std(0)
     keep = std > 1e-12
+    if not keep.any():
+        return np.full(len(query), failed.mean())
     a = (known[:, keep] - mean[keep]) / std[keep]
     b = (query[:, keep] - mean[keep]) / std[keep]
-    nearest = np.argsort(((b[:, None, :] - a[None, :, :]) ** 2).sum(-1), axis=1)[:, : min(k, len(a))]
+    distances = ((b[:, None, :] - a[None, :, :]) ** 2).sum(-1)
+    nearest = np.argsort(distances, axis=1, kind="stable")[:, : min(k, len(a))]
     return failed[nearest].mean(1)
 
 

@@ -38,6 +38,9 @@ def estimate_success(ctx: RoundContext, task: str, record: TaskRoundRecord, epis
     return record.successes / record.eval_episodes
 
 
+DEFAULT_PLAN_EPISODES = 20  # evaluation episodes per task that measure SR_k (without a budget)
+
+
 @StrategyConfig.register_subclass("task_only")
 @dataclass
 class TaskOnlyConfig(StrategyConfig):
@@ -52,7 +55,7 @@ class TaskOnlyConfig(StrategyConfig):
     # CAP_i: at most this many new demonstrations per task per round.
     max_demos_per_task: PerRound = per_round(50)
     # Evaluation episodes per task that estimate SR_k (without a budget).
-    plan_episodes_per_task: int = 20
+    plan_episodes_per_task: int = DEFAULT_PLAN_EPISODES
     # B_i: demonstrations per round, split as the budgeted strategy splits them (from fresh states).
     budget: PerRound = per_round()
     # With a budget: the budgeted strategy's bound on evaluation episodes per task and round, and its decay.
@@ -70,6 +73,11 @@ class TaskOnlyConfig(StrategyConfig):
             raise AdaDemoError(
                 f"--strategy.budget={list(self.budget)} and --strategy.target_successes="
                 f"{list(self.target_successes)} both set the round's size: pass one"
+            )
+        if self.budget and self.plan_episodes_per_task != DEFAULT_PLAN_EPISODES:
+            raise AdaDemoError(
+                "--strategy.plan_episodes_per_task sets the evaluations without a budget; with --strategy.budget "
+                "the budgeted loop evaluates (bounded by --strategy.max_eval_episodes_per_task): drop one"
             )
         if not self.budget and self.max_eval_episodes_per_task is not None:
             raise AdaDemoError(
