@@ -322,6 +322,21 @@ def test_a_run_started_before_a_config_field_existed_resumes_as_that_field_s_def
         RunState(journal(tmp_path / "budget", {"strategy": journaled}), changed)
 
 
+def test_training_seed_batch_size_and_autonomous_weight_are_fixed_once_recorded(tmp_path):
+    from adademo_lerobot.core.errors import AdaDemoError
+    from adademo_lerobot.loop.run_state import RunState
+
+    older = {"strategy": "adademo", "lr_schedule": "preset"}  # a run that did not record them: not checked
+    (tmp_path / "run_state.json").write_text(json.dumps({"settings": older, "done": {"collect": {}}}))
+    now = {**older, "demo_start": "initial", "takeover": None, "train_seed": 1000, "batch_size": 32}
+    now["autonomous_weight"] = 0.0
+    assert RunState(tmp_path, now).done == {"collect": {}}
+    for changed in ({"train_seed": 1001}, {"batch_size": 64}, {"autonomous_weight": 0.5}):  # recorded now
+        with pytest.raises(AdaDemoError, match=next(iter(changed))):
+            RunState(tmp_path, {**now, **changed})
+    assert RunState(tmp_path, now).done == {"collect": {}}
+
+
 def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_type_checked(tmp_path):
     from adademo_lerobot.core.errors import AdaDemoError
     from adademo_lerobot.loop.run_state import RunState

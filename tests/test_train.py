@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 import torch
-from conftest import BIN, TINY_ACT, assert_cli_error, run_cli
+from conftest import BIN, TINY_ACT, TINY_ACT_POLICY, assert_cli_error, run_cli
 
 TINY_DIFFUSION = [
     "--policy.type=diffusion",
@@ -118,6 +118,41 @@ def test_fine_tune_from_a_stock_lerobot_train_checkpoint(reach_push_dataset, sto
     stock = json.loads((stock_act_checkpoint / "config.json").read_text())["normalization_mapping"]
     assert "ENV" not in stock
     assert json.loads((ckpt / "config.json").read_text())["normalization_mapping"] == stock
+
+
+def test_a_resumed_training_ends_with_the_weights_of_an_uninterrupted_one(reach_push_dataset, tmp_path):
+    """Stopped at a checkpoint and resumed, training continues the same random draws (dropout, the VAE's noise) as
+    an uninterrupted run: the final weights are equal bit for bit."""
+    from safetensors.torch import load_file
+
+    common = [*data_args(reach_push_dataset), *TINY_ACT, "--save_freq=3", "--torch_threads=1"]
+    whole, stopped = tmp_path / "whole", tmp_path / "stopped"
+    run_cli("adademo-train", *common, "--steps=6", f"--output_dir={whole}")
+    run_cli("adademo-train", *common, "--steps=3", f"--output_dir={stopped}")  # as if stopped after step 3
+    run_cli("adademo-train", *common, "--steps=6", f"--output_dir={stopped}", "--resume=true")
+
+    def weights(out):
+        return load_file(out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
+
+    a, b = weights(whole), weights(stopped)
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    first = load_file(whole / "checkpoints" / "000003" / "pretrained_model" / "model.safetensors")
+    assert not all(torch.equal(a[k], first[k]) for k in a)  # steps 4-6 changed the weights
+    # Killed after the final checkpoint was renamed into place, before `last` moved to it: the rerun finds the
+    # training finished at step 6 and points `last` there (it returned step 3's policy as the result).
+    last = whole / "checkpoints" / "last"
+    last.unlink()
+    last.symlink_to("000003")
+    proc = run_cli("adademo-train", *common, "--steps=6", f"--output_dir={whole}", "--resume=true")
+    assert (
+        "training already finished at step 6" in proc.stdout + proc.stderr and last.resolve().name == "000006"
+    )
+    # Resumed with another batch size, the sampler would skip the wrong number of draws: refused.
+    args = [*data_args(reach_push_dataset), *TINY_ACT_POLICY, "--batch_size=4", "--save_freq=3"]
+    assert_cli_error(
+        "adademo-train", *args, "--steps=9", f"--output_dir={whole}", "--resume=true",
+        match="trained with --batch_size=8: resume with the same",
+    )  # fmt: skip
 
 
 @pytest.mark.slow

@@ -44,7 +44,8 @@ class RunState:
             diffs = sorted(
                 k
                 for k in set(settings) | set(state["settings"])
-                if settings.get(k) != state["settings"].get(k) and k in FIXED_SETTINGS
+                if settings.get(k) != state["settings"].get(k)
+                and (k in FIXED_SETTINGS or k in FIXED_SINCE_RECORDED and k in state["settings"])
             )
             if diffs:
                 raise AdaDemoError(
@@ -105,6 +106,8 @@ FIXED_SETTINGS = (
     "demo_start",
     "takeover",
 )
+# Settings fixed once a run records them: runs started before they were recorded did not, with values unknown.
+FIXED_SINCE_RECORDED = ("train_seed", "batch_size", "autonomous_weight")
 # Settings that runs started by an earlier release do not record, with the value those runs used.
 SETTINGS_ADDED_LATER = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}
 # Fields of the config settings whose default does not do what runs journaled before the field did: such a run

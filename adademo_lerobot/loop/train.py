@@ -135,6 +135,12 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
                     f"--resume=true but {self.output_dir} has no complete checkpoint to resume from"
                 )
             self.checkpoint_path = last
+            saved = json.loads((last / "training_state" / "training_step.json").read_text())
+            if saved.get("batch_size", self.batch_size) != self.batch_size:  # the sampler resumes by it
+                raise AdaDemoError(
+                    f"{last} trained with --batch_size={saved['batch_size']}: resume with the same "
+                    f"(got --batch_size={self.batch_size})"
+                )
             device = self.policy.device if self.policy is not None else None
             self.policy = pretrained_policy_config(last / "pretrained_model")
             self.policy.device = device or self.policy.device
@@ -275,8 +281,16 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     update_all_tensors_at_once(optimizer)
     # LeRobot's resume in its own two phases around `accelerator.prepare` (lerobot_training.py: 0.6.1 or main).
     step = lerobot_training.resume_before_prepare(cfg, optimizer, lr_scheduler) if cfg.resume else 0
+    # The checkpoint's random state, given back once the batches start (`training_loop`): starting the loader
+    # draws from it, which the interrupted run did once before its first step, not again at this one.
+    resumed_rng = torch.get_rng_state() if cfg.resume else None
     if step >= cfg.steps:
+        from lerobot.common.train_utils import update_last_checkpoint
+
         log.info("training already finished at step %d (%s)", step, cfg.output_dir)
+        # The checkpoint resumed from, not `last`: a kill between renaming the final checkpoint into place and
+        # moving the `last` link left the link on the one before.
+        update_last_checkpoint(cfg.checkpoint_path)
         return cfg.output_dir / "checkpoints" / "last" / "pretrained_model"
     accelerator = Accelerator(
         cpu=policy.config.device == "cpu",
@@ -309,7 +323,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     }
     parts = (policy, optimizer, lr_scheduler, preprocessor, postprocessor)
     mask = policy_action_mask(dataset, flags) if flags is not None and cfg.autonomous_weight == 0 else None
-    return training_loop(cfg, dataset, dataloader, parts, accelerator, step, info, mask)
+    return training_loop(cfg, dataset, dataloader, parts, accelerator, step, info, mask, resumed_rng)
 
 
 def update_all_tensors_at_once(optimizer) -> None:
@@ -441,10 +455,19 @@ def weighted_loader(cfg: AdaDemoTrainConfig, dataset, episodes, scheme, step: in
 
 
 def training_loop(
-    cfg: AdaDemoTrainConfig, dataset, dataloader, parts, accelerator, step: int, info: dict, mask=None
+    cfg: AdaDemoTrainConfig,
+    dataset,
+    dataloader,
+    parts,
+    accelerator,
+    step: int,
+    info: dict,
+    mask=None,
+    resumed_rng: torch.Tensor | None = None,
 ) -> Path:
     """lerobot-train's loop around `update_policy` (metrics, wandb, checkpoints), for our loader; `mask` marks
-    the action targets not to imitate (`policy_action_mask`)."""
+    the action targets not to imitate (`policy_action_mask`); `resumed_rng`: torch's random state to train on
+    from the first step (a resumed run's, as its checkpoint saved it)."""
     from lerobot.scripts.lerobot_train import update_policy
     from lerobot.utils.logging_utils import AverageMeter
 
@@ -478,6 +501,9 @@ def training_loop(
     )
     data_start = time.perf_counter()
     for batch in dataloader:
+        if resumed_rng is not None:  # after the loader's first batch, which drew its base seed from torch's
+            torch.set_rng_state(resumed_rng)  # generator (the interrupted run drew it before its first step)
+            resumed_rng = None
         for (
             key
         ) in camera_keys:  # LeRobot's dataset returns frames as uint8 (as stock lerobot-train converts them)
