@@ -239,6 +239,9 @@ def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, 
         zip(eps0.task, eps0["adademo/seed"], strict=True)
     )
     assert len(committed_round_1) >= 2, "the kill came after two commits"
+    # Resumed with another evaluation batch, the round would evaluate other states together: refused, unchanged.
+    other = [a if a != "--eval.batch_size=2" else "--eval.batch_size=3" for a in args]
+    assert_cli_error("adademo-expand", *other, match="eval_batch_size: 2 -> 3")
     run_cli("adademo-expand", *args)
     eps, new, ledger = check_ledger_agrees(dataset, 1)
     assert committed_round_1 <= set(

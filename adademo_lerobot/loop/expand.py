@@ -230,6 +230,9 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     ctx.resume_commits()  # what a stopped run committed to the journal is merged first
     started = journal.of_type("start")
     decided = strategy.start(ctx, started[0] if started else None)
+    # The evaluation batch decides which states a round evaluates together (and their outcomes' seeds): fixed for
+    # the round, except in one journaled before it was recorded.
+    batch = {} if started and "eval_batch_size" not in started[0] else {"eval_batch_size": ctx.batch_size}
     journal.start(
         {
             "strategy": strategy.name,
@@ -237,6 +240,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
             "seed": cfg.seed,
             "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
             **journaled_round_settings(cfg),
+            **batch,
         },
         field_defaults=config_field_defaults({}),
     )
