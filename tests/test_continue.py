@@ -178,6 +178,25 @@ def test_a_copy_left_by_an_interrupted_start_is_replaced_whole(reach_push_datase
     assert not (tmp_path / "run" / ".dataset.copying").exists()
 
 
+def test_a_revision_that_would_be_ignored_is_refused(reach_push_dataset, checkpoint):
+    from adademo_lerobot.core.errors import AdaDemoError
+    from adademo_lerobot.loop.start import StartDatasetArgs, StartPolicyArgs, check_start
+    from adademo_lerobot.suites import SuiteConfig
+
+    suite = SuiteConfig.get_choice_class("metaworld")()
+    local = StartDatasetArgs(repo_id="local/demo", root=str(reach_push_dataset))
+    for policy, says in (
+        (StartPolicyArgs(path=str(checkpoint), revision="v1"), "a local folder has none: drop it"),
+        (StartPolicyArgs(revision="v1"), "give --policy.path too"),
+    ):
+        with pytest.raises(AdaDemoError, match=f"--policy.revision=v1 .*{says}"):
+            check_start(local, policy, suite, True)
+    with pytest.raises(AdaDemoError, match="--dataset.revision=v1 .*local folder is used as it is"):
+        check_start(
+            StartDatasetArgs("local/demo", str(reach_push_dataset), "v1"), StartPolicyArgs(), suite, True
+        )
+
+
 @pytest.mark.slow
 def test_bad_starting_points_get_one_error_and_nothing_is_written(reach_push_dataset, checkpoint, tmp_path):
     run_dir = tmp_path / "run"

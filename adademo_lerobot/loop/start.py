@@ -235,6 +235,16 @@ def check_start(
     from adademo_lerobot.dataset.features import dataset_features
     from adademo_lerobot.evaluation.policy import check_policy
 
+    if policy.revision is not None and (policy.path is None or Path(policy.path).expanduser().exists()):
+        raise AdaDemoError(
+            f"--policy.revision={policy.revision} picks a revision of a hub checkpoint (--policy.path=USER/NAME); "
+            + ("a local folder has none: drop it" if policy.path else "give --policy.path too")
+        )
+    if dataset.revision is not None and dataset.root is not None:
+        raise AdaDemoError(
+            f"--dataset.revision={dataset.revision} picks a revision of a hub dataset; with --dataset.root the "
+            "local folder is used as it is: drop one"
+        )
     root, dataset_commit = locate_dataset(dataset)
     check_dataset_integrity(root)
     suite_config = choose_suite(root, requested_suite, requested_is_default)
