@@ -115,7 +115,11 @@ def test_kept_rollouts_in_a_dagger_dataset_are_the_policys_frames(reach, tmp_pat
         repo_id="local/demo",
     )
     # LeRobot 0.6.1's add_features writes no per-episode stats for the feature it adds, which any append (LeRobot's
-    # own too) then makes unreadable; a DAgger dataset recorded by lerobot-rollout has them: give them here.
+    # own too) then makes unreadable: refused before anything is written.
+    before = file_digests(root)
+    assert_cli_error("adademo-expand", *args(root, ckpt), match="no per-episode stats for intervention")
+    assert file_digests(root) == before
+    # A DAgger dataset recorded by lerobot-rollout has them: give them here.
     import pyarrow as pa
     import pyarrow.parquet as pq
 

@@ -136,11 +136,31 @@ def carried_frame_values(features: dict, by_policy: bool = False) -> dict[str, n
     return {}
 
 
+def check_episode_stats(root: str | Path, features: dict | None = None) -> None:
+    """Refuse to append to a dataset whose newest episode file has no per-episode stats for one of its features:
+    LeRobot's add_features writes none for the feature it adds, any append (LeRobot's own too) then writes a file
+    with them, and stock LeRobot no longer opens the dataset."""
+    features = read_info(root).get("features", {}) if features is None else features
+    newest = sorted((Path(root) / "meta" / "episodes").glob("chunk-*/file-*.parquet"))[-1:]
+    if not newest:
+        return
+    names = set(pq.read_schema(newest[0]).names)
+    unstated = [k for k in features if f"stats/{k}/mean" not in names]
+    if unstated:
+        raise AdaDemoError(
+            f"{root}'s episode files have no per-episode stats for {','.join(unstated)} (LeRobot's add_features "
+            "writes none for the feature it adds): any episode appended to it, by LeRobot too, would leave it "
+            "unreadable by stock LeRobot; record that feature with the episodes instead, or continue on a copy "
+            "without it (lerobot-edit-dataset --operation.type=remove_feature)"
+        )
+
+
 def check_writable_features(root: str | Path, produced: dict | list, who: str) -> None:
     """Refuse, before anything is recorded, a dataset with a feature that `who` neither produces nor carries:
     LeRobot's writer would refuse every frame of it (after the person's work)."""
     found = read_info(root).get("features", {})
     carried = carried_frame_values(found)
+    check_episode_stats(root, found)
     unknown = [k for k in found if k not in produced and k not in carried and k not in LEROBOT_FRAME_FEATURES]
     if unknown:
         names = ",".join(unknown)

@@ -25,6 +25,7 @@ from adademo_lerobot.core.progress import show
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.features import dataset_features
+from adademo_lerobot.dataset.interventions import check_episode_stats
 from adademo_lerobot.dataset.layout import COL_ROUND, COL_SOURCE, POLICY_SOURCE
 from adademo_lerobot.dataset.ledger import RoundJournal, append_ledger, ledger_rounds
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
@@ -168,6 +169,9 @@ def run_expand(
         check_dataset_integrity(root)  # refuse a damaged dataset before anything is written
         suite = make_suite(load_suite_config(root))
         if not cfg.plan_only:
+            check_episode_stats(
+                root
+            )  # before the round's journal: an append would break it for stock LeRobot
             cfg.collector.validate(suite)
             if cfg.demo_start == "takeover":
                 check_can_take_over(suite, cfg.collector)

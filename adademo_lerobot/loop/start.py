@@ -26,6 +26,7 @@ from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import atomic_write_text
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.features import check_features_match
+from adademo_lerobot.dataset.interventions import check_episode_stats
 from adademo_lerobot.dataset.layout import SUITE_FILE
 from adademo_lerobot.dataset.metadata import (
     check_same_suite,
@@ -247,6 +248,7 @@ def check_start(
         )
     root, dataset_commit = locate_dataset(dataset)
     check_dataset_integrity(root)
+    check_episode_stats(root)  # the run appends to it (or its copy): refused before anything is copied
     suite_config = choose_suite(root, requested_suite, requested_is_default)
     suite = make_suite(suite_config)
     check_features_match(read_info(root).get("features", {}), suite, f"dataset {dataset.repo_id}")
