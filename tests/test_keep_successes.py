@@ -184,6 +184,46 @@ def test_a_killed_round_resumes_to_the_dataset_an_uninterrupted_round_makes(reac
     pd.testing.assert_frame_equal(frames(killed), frames(whole))
 
 
+def test_a_killed_round_of_the_loop_that_pays_for_rollouts_resumes_to_the_same_dataset(reach, tmp_path):
+    """The budgeted strategy with a rollout cost (its own loop over the round: evaluate, demonstrate from fresh
+    states, probe), killed once rollouts are journaled: the rerun ends with the dataset and the ledger row of an
+    uninterrupted round."""
+    source, ckpt = reach
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    shutil.copytree(source, whole)
+    shutil.copytree(source, killed)
+    paying = [
+        "--dataset.repo_id=local/demo", f"--policy.path={ckpt}", "--strategy.type=budgeted",
+        "--strategy.budget=10", "--strategy.max_demos_per_task=10", "--strategy.rollout_cost=1",
+        "--strategy.probe_unsure=true", "--strategy.split_episodes=true", "--eval.batch_size=2",
+        "--commit_every=100",
+    ]  # fmt: skip
+    run_cli("adademo-expand", *paying, f"--dataset.root={whole}")
+    journal = killed / "meta" / "adademo" / "journal-round-001.jsonl"
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-expand"), *paying, f"--dataset.root={killed}"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.time() + 300
+    while not (journal.is_file() and journal.read_text().count('"type": "eval"') >= 2):
+        assert time.time() < deadline and proc.poll() is None, "expand ended before rollouts were journaled"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    recover_interrupted_write(killed)
+    run_cli("adademo-expand", *paying, f"--dataset.root={killed}")
+    columns = ["task", "length", "adademo/seed", "adademo/round", "adademo/source"]
+    pd.testing.assert_frame_equal(
+        read_episode_metadata(killed)[columns], read_episode_metadata(whole)[columns]
+    )
+    keys = ("demos_added", "eval_episodes", "successes", "failures", "expert_failures")
+    assert [{k: r[k] for k in keys} for r in read_ledger(killed)] == [
+        {k: r[k] for k in keys} for r in read_ledger(whole)
+    ]
+    assert read_ledger(whole)[0]["eval_episodes"] >= 1  # the round did pay for rollouts
+
+
 def test_keep_successes_with_a_strategy_that_runs_no_rollout_is_refused(reach, tmp_path):
     source, ckpt = reach
     before = file_digests(source)
