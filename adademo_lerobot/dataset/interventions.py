@@ -160,7 +160,6 @@ def check_writable_features(root: str | Path, produced: dict | list, who: str) -
     LeRobot's writer would refuse every frame of it (after the person's work)."""
     found = read_info(root).get("features", {})
     carried = carried_frame_values(found)
-    check_episode_stats(root, found)
     unknown = [k for k in found if k not in produced and k not in carried and k not in LEROBOT_FRAME_FEATURES]
     if unknown:
         names = ",".join(unknown)
@@ -170,3 +169,4 @@ def check_writable_features(root: str | Path, produced: dict | list, who: str) -
             f'--new_root=NEW_FOLDER --operation.type=remove_feature --operation.feature_names="{unknown}") '
             "and continue on the copy"
         )
+    check_episode_stats(root, found)  # after: a feature we do not record says more, and how to drop it
