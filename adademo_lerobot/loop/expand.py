@@ -169,9 +169,8 @@ def run_expand(
         check_dataset_integrity(root)  # refuse a damaged dataset before anything is written
         suite = make_suite(load_suite_config(root))
         if not cfg.plan_only:
-            check_episode_stats(
-                root
-            )  # before the round's journal: an append would break it for stock LeRobot
+            # Before the round's journal: an append would leave it unreadable by stock LeRobot.
+            check_episode_stats(root)
             cfg.collector.validate(suite)
             if cfg.demo_start == "takeover":
                 check_can_take_over(suite, cfg.collector)

@@ -34,7 +34,8 @@ class RunState:
                 journaled, current = state["settings"].get(name), settings.get(name)
                 configs = isinstance(journaled, dict) and isinstance(current, dict)
                 if configs and journaled.get("type") == current.get("type"):
-                    for key in current.keys() - journaled.keys() & defaults.keys():  # added since it started
+                    added = (current.keys() - journaled.keys()) & defaults.keys()  # since it started
+                    for key in added:
                         journaled[key] = defaults[key]
             legacy, current = state["settings"].get("strategy"), settings.get("strategy")
             if isinstance(legacy, str) and isinstance(current, dict) and legacy == current.get("type"):
