@@ -247,8 +247,29 @@ def test_a_round_journaled_before_a_takeover_field_existed_resumes_as_that_field
     journal = RoundJournal(tmp_path / "changed", 1)
     journal.start({"strategy": "budgeted", "takeover": {k: v for k, v in defaults.items() if k != "rule"}})
     changed = {"strategy": "budgeted", "takeover": defaults | {"threshold": defaults["threshold"] + 1}}
-    with pytest.raises(AdaDemoError, match="other settings"):  # a value set otherwise is still refused
+    with pytest.raises(
+        AdaDemoError, match="takeover.threshold: 1.5 -> 2.5"
+    ):  # a value set otherwise: refused
         RoundJournal(tmp_path / "changed", 1).start(changed, field_defaults=config_field_defaults({}))
+
+
+def test_a_round_journaled_before_a_collector_field_existed_resumes_as_that_field_s_default(tmp_path):
+    from adademo_lerobot.collectors import PlannerCollectorConfig
+    from adademo_lerobot.loop.run_state import config_field_defaults
+
+    now = PlannerCollectorConfig(samples=8).to_dict()
+    field_defaults = config_field_defaults({"collector": now})
+    older = {k: v for k, v in now.items() if k != "plan_decay"}  # journaled before plan_decay existed
+    RoundJournal(tmp_path, 1).start({"strategy": "adademo", "collector": older})
+    RoundJournal(tmp_path, 1).start({"strategy": "adademo", "collector": now}, field_defaults=field_defaults)
+    decayed = now | {"plan_decay": 0.5}  # the older round planned without decay
+    with pytest.raises(AdaDemoError, match="collector.plan_decay: 0.0 -> 0.5"):
+        RoundJournal(tmp_path, 1).start(
+            {"strategy": "adademo", "collector": decayed}, field_defaults=field_defaults
+        )
+    with pytest.raises(AdaDemoError, match="collector.type: 'planner' -> 'scripted'"):
+        scripted = {"strategy": "adademo", "collector": {"type": "scripted", "max_attempts": 3}}
+        RoundJournal(tmp_path, 1).start(scripted, field_defaults=field_defaults)
 
 
 def test_ledger_appends_whole_rounds_once(tmp_path):

@@ -13,6 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import BIN, TINY_ACT_POLICY, assert_cli_error, file_digests, run_cli
 
+from adademo_lerobot.collectors import ScriptedCollectorConfig
 from adademo_lerobot.core.files import exclusive_use
 from adademo_lerobot.core.seeds import expansion_state_seed, fresh_state_seed
 from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
@@ -242,8 +243,14 @@ def test_kill_9_during_collection_then_same_command_finishes_the_round(dataset, 
     # Resumed with another evaluation batch, the round would evaluate other states together: refused, unchanged.
     other = [a if a != "--eval.batch_size=2" else "--eval.batch_size=3" for a in args]
     assert_cli_error("adademo-expand", *other, match="eval_batch_size: 2 -> 3")
+    # So would another expert (its demonstrations would mix two experts in one round): refused as well.
+    assert_cli_error(
+        "adademo-expand", *args, "--collector.max_attempts=1", match="collector.max_attempts: 3 -> 1"
+    )
     run_cli("adademo-expand", *args)
     eps, new, ledger = check_ledger_agrees(dataset, 1)
+    # The ledger names the round's expert with its settings (its provenance, beside each episode's name).
+    assert [r["collector"] for r in ledger] == [ScriptedCollectorConfig().to_dict()] * len(ledger)
     assert committed_round_1 <= set(
         zip(new.task, new["adademo/seed"], strict=True)
     )  # every committed demo is still there

@@ -273,10 +273,16 @@ KNOWN_FIELDS = {
         "split_episodes", "plan_episodes_per_task", "demos_per_task",
     },
     "suite": {"camera", "image_size", "max_episode_steps", "obs_type", "tasks", "env"},
+    "collector": {
+        "max_attempts", "post_success_frames", "retry_action_noise", "entry", "path", "samples", "horizon",
+        "knot_steps", "iterations", "noise", "temperature", "common_noise", "plan_decay", "reward",
+        "scripted_tasks", "scripted_first", "task_settings",
+    },
 }  # fmt: skip
 
 
 def test_a_run_started_before_a_config_field_existed_resumes_as_that_field_s_default(tmp_path):
+    from adademo_lerobot.collectors import CollectorConfig
     from adademo_lerobot.collectors.takeover import TakeoverArgs
     from adademo_lerobot.core.errors import AdaDemoError
     from adademo_lerobot.loop.run_state import FIELDS_WITHOUT_A_PAST_DEFAULT, RunState
@@ -292,9 +298,10 @@ def test_a_run_started_before_a_config_field_existed_resumes_as_that_field_s_def
         (run_dir / "run_state.json").write_text(json.dumps(state))
         return run_dir
 
-    configs = [("takeover", TakeoverArgs)]  # every field of every strategy and suite, today's and a new one's
-    configs += [("strategy", StrategyConfig.get_choice_class(n)) for n in StrategyConfig.get_known_choices()]
-    configs += [("suite", SuiteConfig.get_choice_class(n)) for n in SuiteConfig.get_known_choices()]
+    configs = [("takeover", TakeoverArgs)]  # every field of every config setting, today's and a new one's
+    registries = {"strategy": StrategyConfig, "suite": SuiteConfig, "collector": CollectorConfig}
+    for setting, registry in registries.items():
+        configs += [(setting, registry.get_choice_class(n)) for n in registry.get_known_choices()]
     for setting, config in configs:
         defaults = config().to_dict()
         assert set(defaults) - {"type"} <= KNOWN_FIELDS[setting], "a new field: see KNOWN_FIELDS"
@@ -322,19 +329,28 @@ def test_a_run_started_before_a_config_field_existed_resumes_as_that_field_s_def
         RunState(journal(tmp_path / "budget", {"strategy": journaled}), changed)
 
 
-def test_training_seed_batch_size_and_autonomous_weight_are_fixed_once_recorded(tmp_path):
+def test_training_seed_batch_size_autonomous_weight_and_expert_are_fixed_once_recorded(tmp_path):
+    from adademo_lerobot.collectors import PlannerCollectorConfig, ScriptedCollectorConfig
     from adademo_lerobot.core.errors import AdaDemoError
     from adademo_lerobot.loop.run_state import RunState
 
     older = {"strategy": "adademo", "lr_schedule": "preset"}  # a run that did not record them: not checked
     (tmp_path / "run_state.json").write_text(json.dumps({"settings": older, "done": {"collect": {}}}))
     now = {**older, "demo_start": "initial", "takeover": None, "train_seed": 1000, "batch_size": 32}
-    now["autonomous_weight"] = 0.0
+    now |= {"autonomous_weight": 0.0, "collector": PlannerCollectorConfig(samples=8).to_dict()}
     assert RunState(tmp_path, now).done == {"collect": {}}
-    for changed in ({"train_seed": 1001}, {"batch_size": 64}, {"autonomous_weight": 0.5}):  # recorded now
+    for changed in (
+        {"train_seed": 1001},
+        {"batch_size": 64},
+        {"autonomous_weight": 0.5},
+        {"collector": PlannerCollectorConfig(samples=16).to_dict()},
+        {"collector": ScriptedCollectorConfig().to_dict()},
+    ):  # recorded now
         with pytest.raises(AdaDemoError, match=next(iter(changed))):
             RunState(tmp_path, {**now, **changed})
-    assert RunState(tmp_path, now).done == {"collect": {}}
+    # The planner's threads set its speed only: a resumed run may use more.
+    faster = {**now, "collector": PlannerCollectorConfig(samples=8, threads=2).to_dict()}
+    assert RunState(tmp_path, faster).done == {"collect": {}}
 
 
 def test_a_run_started_before_the_strategy_registry_resumes_with_its_strategy_type_checked(tmp_path):

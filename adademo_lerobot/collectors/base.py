@@ -8,9 +8,10 @@ does not reach success is never a demonstration, it is counted and reported.
 from __future__ import annotations
 
 import abc
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, ClassVar, Protocol
 
 import draccus
 import numpy as np
@@ -33,10 +34,18 @@ class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
     post_success_frames: int = 5
     # Std of the Gaussian action noise on retries (attempt 2, 3, ...); the first attempt is the pure expert.
     retry_action_noise: float = 0.1
+    # Fields that set how fast the expert runs, not what it does: left out of `to_dict`, free to change on resume.
+    execution_fields: ClassVar[tuple[str, ...]] = ()
 
     @property
     def type(self) -> str:
         return self.get_choice_name(self.__class__)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The expert as a round's journal and ledger and `run_state.json` keep it (its provenance; a resumed round
+        or run must keep it): the type and every field but the execution fields."""
+        values = dataclasses.asdict(self)
+        return {"type": self.type, **{k: v for k, v in values.items() if k not in self.execution_fields}}
 
     @classmethod
     def default_choice_name(cls) -> str | None:

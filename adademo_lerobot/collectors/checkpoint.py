@@ -37,6 +37,7 @@ class PolicyCollectorConfig(CollectorConfig):
 
     path: str | None = None
     device: str = "cpu"
+    execution_fields: ClassVar[tuple[str, ...]] = ("device",)
     # For the messages that list the experts a suite can use.
     expert_hint: ClassVar[str] = "a trained policy as the expert, --collector.path=CHECKPOINT"
 

@@ -25,6 +25,7 @@ import dataclasses
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -92,6 +93,8 @@ class PlannerCollectorConfig(CollectorConfig):
     # with the fields above (Adroit: hammer's demonstrations need common noise to be imitable, pen's cost three
     # times as much with it and stay unimitable: benchmarks/results/adroit.md).
     task_settings: dict[str, PlannerTaskSettings] = field(default_factory=dict)
+    # Threads change the speed only: every rollout in C is independent, and so is the draw that scores it.
+    execution_fields: ClassVar[tuple[str, ...]] = ("threads",)
 
     def check_fields(self) -> None:
         for name in ("samples", "horizon", "iterations", "knot_steps", "threads"):

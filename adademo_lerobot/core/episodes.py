@@ -135,11 +135,13 @@ class TaskRoundRecord:
     demo_frames: int = 0  # frames of the demonstrations added (a correction's: from its takeover step)
     corrections: int = 0  # demonstrations that start mid-episode (--demo_start=takeover)
     policy_episodes_kept: int = 0  # --keep_successes: successful rollouts added as `adademo/source=policy`
-    takeover_failures: int = (
-        0  # takeover states the expert failed from (answered from the initial state, or not)
-    )
+    # Takeover states the expert failed from (answered from the initial state, or not).
+    takeover_failures: int = 0
     wall_seconds: float = 0.0
     expert_failed_states: list[dict] = field(default_factory=list)
+    # The expert, as its config's `to_dict` (a person's rounds: the teleoperator and robot); {} in rounds
+    # written before it was recorded.
+    collector: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)  # strategy-specific figures (e.g. the budgeted posterior)
 
     @property

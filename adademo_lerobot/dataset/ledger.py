@@ -45,6 +45,20 @@ def append_ledger(root: Path, records: list[TaskRoundRecord]) -> None:
     atomic_write_text(Path(root) / LEDGER_FILE, "".join(json.dumps(r) + "\n" for r in rows))
 
 
+def setting_changes(name: str, before, after) -> list[str]:
+    """`name: before -> after`; for a config (a dict) of one type, each field that changed."""
+    configs = isinstance(before, dict) and isinstance(after, dict)
+    if not configs or before.get("type") != after.get("type"):
+        if configs:
+            return [f"{name}.type: {before.get('type')!r} -> {after.get('type')!r}"]
+        return [f"{name}: {before!r} -> {after!r}"]
+    return [
+        f"{name}.{k}: {before.get(k)!r} -> {after.get(k)!r}"
+        for k in {**before, **after}
+        if before.get(k) != after.get(k)
+    ]
+
+
 class RoundJournal:
     """The journal of one round. Entries: `start` (settings), `eval` (one evaluation outcome), `demo` (a collected
     demonstration's cost), `expert_failure`, `time` (seconds spent on a task), and whatever a strategy records
@@ -117,7 +131,9 @@ class RoundJournal:
                 started[name] = defaults | started[name]  # journaled before the field existed
         diffs = [k for k in {**started, **settings} if started.get(k) != settings.get(k)]
         if diffs:
-            details = ", ".join(f"{k}: {started.get(k)!r} -> {settings.get(k)!r}" for k in diffs)
+            details = ", ".join(
+                change for k in diffs for change in setting_changes(k, started.get(k), settings.get(k))
+            )
             raise AdaDemoError(
                 f"round {self.round_index} was started with other settings ({details}); rerun it with the same "
                 f"flags to finish it, or delete {self.path} to discard its evaluations"

@@ -233,9 +233,11 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     ctx.resume_commits()  # what a stopped run committed to the journal is merged first
     started = journal.of_type("start")
     decided = strategy.start(ctx, started[0] if started else None)
-    # The evaluation batch decides which states a round evaluates together (and their outcomes' seeds): fixed for
-    # the round, except in one journaled before it was recorded.
-    batch = {} if started and "eval_batch_size" not in started[0] else {"eval_batch_size": ctx.batch_size}
+    # The evaluation batch decides which states a round evaluates together (and their outcomes' seeds) and the
+    # expert its demonstrations: fixed for the round, except in one journaled before they were recorded.
+    recorded_since = {"eval_batch_size": ctx.batch_size, "collector": cfg.collector.to_dict()}
+    if started:
+        recorded_since = {k: v for k, v in recorded_since.items() if k in started[0]}
     journal.start(
         {
             "strategy": strategy.name,
@@ -243,9 +245,9 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
             "seed": cfg.seed,
             "policy_path": str(Path(cfg.policy.path).resolve()) if needs_policy else None,
             **journaled_round_settings(cfg),
-            **batch,
+            **recorded_since,
         },
-        field_defaults=config_field_defaults({}),
+        field_defaults=config_field_defaults({"collector": cfg.collector.to_dict()}),
     )
     started_at = time.perf_counter()
     records = strategy.expand(ctx)
@@ -255,6 +257,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
         share_round_time(records, time.perf_counter() - started_at, journal)
     bar.close()
     for record in records:
+        record.collector = cfg.collector.to_dict()
         ctx.evaluation_cost(record.task, record)
         record.policy_episodes_kept = len(ctx.kept_successes(record.task))
         record.wall_seconds = round(journal.seconds(record.task), 3)

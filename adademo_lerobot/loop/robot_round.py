@@ -292,9 +292,13 @@ class PersonRound(JournaledRound):
         record.wall_seconds = round(policy_s + demo_s, 1)
         record.extra = {
             **record.extra,
-            "robot": self.session.robot.robot_type,
-            "teleop": self.session.cfg.teleop.type,
             "person_seconds": {"policy_episodes": round(policy_s, 1), "demonstrations": round(demo_s, 1)},
+        }
+        # The expert is a person: which teleoperator and robot they demonstrated with.
+        record.collector = {
+            "type": "person",
+            "teleop": self.session.cfg.teleop.type,
+            "robot": self.session.robot.robot_type,
         }
         return record
 

@@ -125,6 +125,7 @@ def run_settings(cfg: RunConfig, suite: dict) -> dict:
     return {
         "suite": suite,
         "strategy": cfg.strategy.to_dict(),
+        "collector": cfg.collector.to_dict(),
         "rounds": cfg.rounds,
         "initial_demos_per_task": cfg.initial_demos_per_task,
         "seed": cfg.seed,

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import atomic_write_text
@@ -20,7 +21,7 @@ from adademo_lerobot.suites import SuiteConfig
 class RunState:
     """Finished stages of a run, plus the settings that define it (a rerun must keep them). `on_stage` hears
     `[done] NAME` for a stage an earlier invocation finished and `[run]  NAME` for one that runs (the command
-    prints them). A run started before a field of its strategy, suite or takeover settings existed ran as that
+    prints them). A run started before a field of its strategy, suite, collector or takeover settings existed ran as that
     field's default (`config_field_defaults`)."""
 
     def __init__(self, run_dir: Path, settings: dict, on_stage: Callable[[str], None] | None = None):
@@ -108,20 +109,22 @@ FIXED_SETTINGS = (
     "takeover",
 )
 # Settings fixed once a run records them: runs started before they were recorded did not, with values unknown.
-FIXED_SINCE_RECORDED = ("train_seed", "batch_size", "autonomous_weight")
+FIXED_SINCE_RECORDED = ("train_seed", "batch_size", "autonomous_weight", "collector")
 # Settings that runs started by an earlier release do not record, with the value those runs used.
 SETTINGS_ADDED_LATER = {"lr_schedule": "preset", "demo_start": "initial", "takeover": None}
 # Fields of the config settings whose default does not do what runs journaled before the field did: such a run
 # is refused rather than resumed as the default. (Takeover corrections retried and had no fallback then.)
 FIELDS_WITHOUT_A_PAST_DEFAULT = {"takeover": ("attempts", "fallback")}
+# The config settings that are a choice among registered types, by the setting's name.
+CONFIG_REGISTRIES = {"strategy": StrategyConfig, "suite": SuiteConfig, "collector": CollectorConfig}
 
 
 def config_field_defaults(settings: dict) -> dict[str, dict]:
-    """Per config setting (the takeover's, and the strategy's and suite's of the type `settings` name): the
+    """Per config setting (the takeover's, and the strategy's, suite's and collector's of the type `settings` name): the
     fields a run or round journaled before they existed ran as, their defaults (a new field's default keeps the
     behaviour from before it, docs/extending.md), but `FIELDS_WITHOUT_A_PAST_DEFAULT`."""
     defaults = {"takeover": TakeoverArgs().to_dict()}
-    for name, registry in (("strategy", StrategyConfig), ("suite", SuiteConfig)):
+    for name, registry in CONFIG_REGISTRIES.items():
         kind = settings.get(name, {}).get("type") if isinstance(settings.get(name), dict) else None
         if kind in registry.get_known_choices():
             defaults[name] = registry.get_choice_class(kind)().to_dict()
