@@ -9,6 +9,7 @@ import time
 import pytest
 from conftest import BIN, assert_cli_error, run_cli
 
+from adademo_lerobot.collectors import ScriptedCollectorConfig
 from adademo_lerobot.core.files import exclusive_use
 from adademo_lerobot.core.seeds import evaluation_seeds
 from adademo_lerobot.dataset.ledger import read_ledger
@@ -42,6 +43,8 @@ def test_tiny_recipe_end_to_end_with_report(tmp_path):
     report = (run_dir / "report" / "report.md").read_text()
     assert "round 0: SR % (demos)" in report and "round 1: SR % (demos)" in report and "reach-v3" in report
     assert "| 1 | adademo |" in report  # the ledger's round
+    assert "Expert (`collector` in the ledger): round 1: scripted." in report  # at its defaults
+    assert state["settings"]["collector"] == ScriptedCollectorConfig().to_dict()
     # Can its demonstrations be imitated? 4 a task are too few to score, and the report says so per task.
     assert "Can a policy imitate these demonstrations?" in report
     assert "| reach-v3 | 4 | - | too few demonstrations" in report and "| push-v3 | 4 | - | too few" in report
@@ -397,3 +400,32 @@ def test_a_resumed_stage_reports_the_seconds_of_every_invocation_that_worked_on_
     assert RunState(tmp_path, settings, on_stage=heard.append).stage("train_0", interrupted) == "checkpoint"
     assert heard == ["[run]  train_0", "[run]  train_0", "[done] train_0"]
     assert json.loads((tmp_path / "run_state.json").read_text()) == state  # a finished stage is not rerun
+
+
+def test_the_report_names_each_round_s_expert_by_the_settings_it_changed():
+    import pandas as pd
+
+    from adademo_lerobot.collectors import PlannerCollectorConfig
+    from adademo_lerobot.collectors.planner import PlannerTaskSettings
+    from adademo_lerobot.loop.report import expert_lines
+
+    hammer = {"hammer": PlannerTaskSettings(common_noise=True)}
+    planner = PlannerCollectorConfig(samples=16, threads=2, task_settings=hammer).to_dict()
+    person = {"type": "person", "teleop": "so101_leader", "robot": "so101_follower"}
+    rounds = [
+        (1, {}),
+        (2, planner),
+        (2, planner),
+        (3, planner),
+        (4, person),
+        (5, planner),
+    ]  # round 1 before 0.4
+    ledger = pd.DataFrame([{"round": r, "task": "hammer", "collector": c} for r, c in rounds])
+    planned = "planner (samples=16, task_settings={'hammer': {'common_noise': True}})"
+    assert expert_lines(ledger) == [
+        "",
+        f"Expert (`collector` in the ledger): rounds 2-3: {planned}; "
+        "round 4: person (teleop=so101_leader, robot=so101_follower); "
+        f"round 5: {planned}.",
+    ]
+    assert expert_lines(ledger.drop(columns="collector")) == []  # a ledger written before it was recorded

@@ -80,6 +80,23 @@ class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
         """The collector class `build` makes (read without building it)."""
 
 
+def expert_summary(settings: dict) -> str:
+    """`type (field=value, ...)` of a journaled expert (`CollectorConfig.to_dict`), naming the fields that differ
+    from its type's defaults (all of them for a type without a config here: a person's)."""
+    kind = settings.get("type", "?")
+    known = CollectorConfig.get_known_choices()
+    defaults = CollectorConfig.get_choice_class(kind)().to_dict() if kind in known else {}
+    parts = []
+    for key, value in settings.items():
+        if key == "type" or (key in defaults and value == defaults[key]):
+            continue
+        if isinstance(value, dict):  # per-task settings: only the fields they set
+            value = {k: {f: x for f, x in v.items() if x is not None} if isinstance(v, dict) else v
+                     for k, v in value.items()}  # fmt: skip
+        parts.append(f"{key}={value}")
+    return f"{kind} ({', '.join(parts)})" if parts else kind
+
+
 class ExpertCollector(Protocol):
     name: str
     # Whether the expert can take over mid-episode, from any state (`--demo_start=takeover`).

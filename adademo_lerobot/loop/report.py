@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from adademo_lerobot.collectors.base import expert_summary
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.interventions import intervention_flags
@@ -168,9 +169,33 @@ def markdown_tables(run: RunResults) -> str:
                 aligned=False,
             ),
         ]
+        lines += expert_lines(ledger)
         lines += cost_lines(run, ledger)
         lines += allocation_lines(run.ledger)
     return "\n".join(lines)
+
+
+def expert_lines(ledger: pd.DataFrame) -> list[str]:
+    """Which expert demonstrated each round, with the settings that differ from its defaults (rounds written
+    before the ledger recorded it are left out)."""
+    if "collector" not in ledger.columns:
+        return []
+    experts = {
+        r: expert_summary(g.collector.iloc[0])
+        for r, g in ledger.groupby("round")
+        if isinstance(g.collector.iloc[0], dict) and g.collector.iloc[0]
+    }
+    if not experts:
+        return []
+    spans: list[tuple[list[int], str]] = []  # consecutive rounds with one expert, as one entry
+    for r, name in experts.items():
+        if spans and spans[-1][1] == name and spans[-1][0][-1] == r - 1:
+            spans[-1][0].append(r)
+        else:
+            spans.append(([r], name))
+    named = [f"round{'s' if len(rs) > 1 else ''} {rs[0]}{f'-{rs[-1]}' if len(rs) > 1 else ''}: {name}"
+             for rs, name in spans]  # fmt: skip
+    return ["", f"Expert (`collector` in the ledger): {'; '.join(named)}."]
 
 
 def load_uniform(path: Path, run: RunResults) -> RunResults:
