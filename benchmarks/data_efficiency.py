@@ -5,6 +5,7 @@ budgeted strategy, at equal demonstrations per round, with the noise of the meas
     python benchmarks/data_efficiency.py noise               # noise floor: one round trained twice, two seeds
     python benchmarks/data_efficiency.py noise --arms budgeted_tempered --lr_schedule cosine   # with another schedule
     python benchmarks/data_efficiency.py arms --seeds 0 1 2 [--arms uniform adademo ...] [--torch_threads 1]
+    python benchmarks/data_efficiency.py reread --from_out OLD --seeds 1 --arms uniform   # read again (below)
     python benchmarks/data_efficiency.py export              # summaries of arms an older driver finished
     python benchmarks/data_efficiency.py report --seeds 0 1 2 [--arms ...]   # the arms to report (and Uniform)
 
@@ -41,6 +42,11 @@ train closer policies (equal on MT10 seeds 0 and 1, not on seed 2: compare round
 `--test_states per_seed` evaluates each seed on its own fixed states (--eval.seed=100+seed), so that the intervals
 over seeds include the sampling of the test states; `shared` (the default, and every folder written before it)
 evaluates every seed on eval seed 100's states.
+
+`reread` copies each seed's base and policy-free arms (Uniform) from another --out into this one and evaluates
+them again under --recipe, whose policy may differ from theirs only in how a trained policy acts (ACT's
+n_action_steps and temporal ensembling: the same weights either way), so a recipe that changes the readout reuses
+their collection and training.
 
 Per seed all arms branch from one shared round 0 (dataset, policy, evaluation), train each round from scratch with
 the same training seed, and are evaluated on the same fixed initial states (50 per task): comparisons are paired.
@@ -408,6 +414,8 @@ def export_run(out: Path, seed: int, arm: str) -> Path:
             for p in run_predictability(run_dir, run_dir / "dataset", run.tasks)[0]
         },
     }
+    if (run_dir / "reread_from.json").exists():  # `reread`: another run's data and weights, evaluated again
+        summary["reread_from"] = json.loads((run_dir / "reread_from.json").read_text())
     path = SUMMARIES / f"seed{seed}-{arm}.json"
     atomic_write_text(path, json.dumps(summary, indent=1) + "\n")
     print(f"wrote {path.relative_to(ROOT)}", flush=True)
@@ -430,6 +438,81 @@ def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
             branch_from_base(base, arm_dir, flags)
             adademo_run(arm_dir, *flags)
             export_run(out, seed, arm)
+
+
+# Policy fields that change how a trained policy acts, not how it trains: ACT trained with n_action_steps 10 or with
+# 1 and temporal ensembling ends with the same weights, bit for bit (checked over 30 steps, 2026-12-06).
+READOUT_FIELDS = ("n_action_steps", "temporal_ensemble_coeff")
+# Policy fields that say where a policy runs or is stored, not what it is.
+PLACEMENT_FIELDS = ("device", "push_to_hub", "repo_id", "pretrained_path")
+# Runs whose data does not depend on the policy (a round-0 base, Uniform): they can be read again with another
+# readout without collecting again; every other arm's rounds evaluate the policy to choose their states.
+POLICY_FREE_ARMS = ("base", "uniform")
+
+
+def recipe_policy(recipe: Path) -> dict:
+    import yaml
+
+    return yaml.safe_load(recipe.read_text())["train"]["policy"]
+
+
+def copy_with_readout(src: Path, dst: Path, policy: dict) -> None:
+    """`src` copied to `dst` with every kept checkpoint acting as `policy` does (its READOUT_FIELDS), and its
+    evaluations dropped, so that rerunning it evaluates again. Refused if `policy` differs from a checkpoint in any
+    other field that decides training."""
+    import lerobot.policies  # noqa: F401  (registers the policy types by name)
+    from lerobot.configs.policies import PreTrainedConfig
+
+    defaults = PreTrainedConfig.get_choice_class(policy["type"])()
+    readout = {f: policy.get(f, getattr(defaults, f)) for f in READOUT_FIELDS}
+    kept = "train/round-*/checkpoints/*/pretrained_model/config.json"  # `last` links to one of them
+    for config_path in sorted(p for p in src.glob(kept) if not p.parent.parent.is_symlink()):
+        config = json.loads(config_path.read_text())
+        differ = [
+            k
+            for k, v in policy.items()
+            if k not in (*READOUT_FIELDS, *PLACEMENT_FIELDS) and k in config and config[k] != v
+        ]
+        if differ:
+            sys.exit(f"{config_path} differs from --recipe in {differ}: not a readout")
+    tmp = dst.with_name(dst.name + ".copying")
+    shutil.rmtree(tmp, ignore_errors=True)
+    shutil.copytree(src, tmp, symlinks=True, ignore=shutil.ignore_patterns("eval", "report"))
+    for config_path in sorted(p for p in tmp.glob(kept) if not p.parent.parent.is_symlink()):
+        config_path.write_text(json.dumps(json.loads(config_path.read_text()) | readout, indent=4))
+        train_config = config_path.with_name("train_config.json")
+        trained = json.loads(train_config.read_text().replace(str(src.resolve()), str(dst.resolve())))
+        trained["policy"] |= readout
+        train_config.write_text(json.dumps(trained, indent=4))
+    reread = {"from": str(src.resolve()), "readout": readout}  # the summary says where its data came from
+    (tmp / "reread_from.json").write_text(json.dumps(reread, indent=2))
+    state = json.loads((tmp / "run_state.json").read_text().replace(str(src.resolve()), str(dst.resolve())))
+    state["done"] = {k: v for k, v in state["done"].items() if not k.startswith("eval-")}
+    state.pop("interrupted", None)
+    (tmp / "run_state.json").write_text(json.dumps(state, indent=2))
+    tmp.rename(dst)
+
+
+def phase_reread(src_out: Path, out: Path, seeds: list[int], arms: list[str]) -> None:
+    """Each seed's base and `arms` (policy-free ones) of `src_out` read again under --recipe, whose policy differs
+    from theirs only in READOUT_FIELDS: the same data and weights, evaluated again, nothing collected or trained."""
+    if set(arms) - set(POLICY_FREE_ARMS):
+        sys.exit(
+            f"reread: {sorted(set(arms) - set(POLICY_FREE_ARMS))} choose their states with the policy: run them"
+        )
+    policy = recipe_policy(RECIPE)
+    for seed in seeds:
+        for arm in ["base", *arms]:
+            src, dst = src_out / f"seed{seed}" / arm, out / f"seed{seed}" / arm
+            if not dst.exists():
+                if not (src / "run_state.json").exists():
+                    sys.exit(f"reread: no run at {src}")
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                copy_with_readout(src, dst, policy)
+            flags = seed_flags(seed)
+            adademo_run(dst, *flags, *(["--rounds=0", *BASE_FLAGS] if arm == "base" else ALL_ARMS[arm]))
+            if arm != "base":
+                export_run(out, seed, arm)
 
 
 def phase_report(seeds: list[int], arms: list[str]) -> None:
@@ -475,6 +558,8 @@ TITLES = {
     "adroit": "Adroit (door, hammer, pen, relocate): Uniform, AdaDemo, budgeted, costed_split",
     # The same with hammer planned with common noise (`recipes/adroit_table_common_noise.yaml`).
     "adroit_common_noise": "Adroit, hammer planned with common noise: Uniform, AdaDemo, budgeted, costed_split",
+    # The same, ACT acting by temporal ensembling (`recipes/adroit_table_ensembled.yaml`).
+    "adroit_ensembled": "Adroit, ACT acting by temporal ensembling: Uniform, AdaDemo, budgeted, costed_split",
 }
 TAKEOVER_ARMS = {
     "budgeted_takeover",
@@ -487,11 +572,17 @@ TAKEOVER_ARMS = {
 def main() -> None:
     global SUMMARIES, RECIPE
     parser = argparse.ArgumentParser()
-    parser.add_argument("phase", choices=["select", "noise", "arms", "export", "report"])
+    parser.add_argument("phase", choices=["select", "noise", "arms", "reread", "export", "report"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--arms", nargs="+", choices=list(ALL_ARMS), default=list(ALL_ARMS))
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
     parser.add_argument("--torch_threads", type=int, default=None)
+    parser.add_argument(
+        "--from_out",
+        type=Path,
+        default=None,
+        help="reread: the --out of the runs to read again under --recipe",
+    )
     parser.add_argument("--candidates", default=CANDIDATES, help="select: comma-separated MetaWorld tasks")
     parser.add_argument("--name", default="select", help="select: the run's name under --out")
     parser.add_argument(
@@ -545,6 +636,10 @@ def main() -> None:
         phase_noise(args.out, args.arms, args.lr_schedule, args.train_seeds)
     elif args.phase == "arms":
         phase_arms(args.out, args.seeds, args.arms)
+    elif args.phase == "reread":
+        if args.from_out is None:
+            parser.error("reread needs --from_out (the runs to read again)")
+        phase_reread(args.from_out, args.out, args.seeds, args.arms)
     elif args.phase == "export":
         phase_export(args.out)
     else:
