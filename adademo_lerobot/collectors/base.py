@@ -90,9 +90,10 @@ def expert_summary(settings: dict) -> str:
     for key, value in settings.items():
         if key == "type" or (key in defaults and value == defaults[key]):
             continue
-        if isinstance(value, dict):  # per-task settings: only the fields they set
-            value = {k: {f: x for f, x in v.items() if x is not None} if isinstance(v, dict) else v
-                     for k, v in value.items()}  # fmt: skip
+        if isinstance(value, dict):  # per-task settings: only the fields each task sets
+            value = {
+                task: {f: x for f, x in fields.items() if x is not None} for task, fields in value.items()
+            }
         parts.append(f"{key}={value}")
     return f"{kind} ({', '.join(parts)})" if parts else kind
 

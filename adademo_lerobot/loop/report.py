@@ -193,8 +193,9 @@ def expert_lines(ledger: pd.DataFrame) -> list[str]:
             spans[-1][0].append(r)
         else:
             spans.append(([r], name))
-    named = [f"round{'s' if len(rs) > 1 else ''} {rs[0]}{f'-{rs[-1]}' if len(rs) > 1 else ''}: {name}"
-             for rs, name in spans]  # fmt: skip
+    named = [
+        f"{f'rounds {rs[0]}-{rs[-1]}' if len(rs) > 1 else f'round {rs[0]}'}: {name}" for rs, name in spans
+    ]
     return ["", f"Expert (`collector` in the ledger): {'; '.join(named)}."]
 
 
