@@ -414,7 +414,8 @@ def export_run(out: Path, seed: int, arm: str) -> Path:
             for p in run_predictability(run_dir, run_dir / "dataset", run.tasks)[0]
         },
     }
-    if (run_dir / "reread_from.json").exists():  # `reread`: another run's data and weights, evaluated again
+    # `reread`: another run's data and weights evaluated again (for an arm branched from a reread base, its round 0's).
+    if (run_dir / "reread_from.json").exists():
         summary["reread_from"] = json.loads((run_dir / "reread_from.json").read_text())
     path = SUMMARIES / f"seed{seed}-{arm}.json"
     atomic_write_text(path, json.dumps(summary, indent=1) + "\n")
