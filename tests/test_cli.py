@@ -155,3 +155,20 @@ def test_plan_only_is_refused_for_a_strategy_that_cannot_plan(strategy, plans):
     else:
         with pytest.raises(AdaDemoError, match="--plan_only predicts N_k = E/SR_k - E: it needs"):
             cfg.validate()
+
+
+def test_an_import_that_fails_mid_command_is_one_error_line_that_says_it_resumes(monkeypatch, capsys):
+    """A module first imported late in a long command (the report at a run's end) after the package changed on disk,
+    or a missing one: one `error:` line, exit 1, not a traceback."""
+    from adademo_lerobot.loop.cli import run_command
+    from adademo_lerobot.loop.configs import ReportConfig
+
+    monkeypatch.setattr("sys.argv", ["adademo-report"])
+    with pytest.raises(SystemExit) as exit_info:
+        run_command("adademo_lerobot.loop.no_such_module:write_report", ReportConfig)
+    assert exit_info.value.code == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        "error: No module named 'adademo_lerobot.loop.no_such_module'"
+    )
+    assert "run the same command to resume" in lines[0]

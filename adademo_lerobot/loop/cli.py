@@ -290,8 +290,9 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
     `--help`, flag errors and `config.validate()` answer from a first parse that imports no LeRobot config;
     with `lerobot_choice` fields, or with `lerobot_config` ("module:Class", a LeRobot config of which
     `config_cls` holds our own flags), the config is then parsed in full. Bad input exits 2 with one `error:`
-    line; a failure of the machine (a full disk, an I/O error, a lost Ray cluster) exits 1 with one `error:` line
-    that says the same command resumes; Ctrl-C (or SIGTERM) exits 130 saying how to resume."""
+    line; a failure of the machine (a full disk, an I/O error, a lost Ray cluster) or of the installation (an
+    import that fails mid-run) exits 1 with one `error:` line that says the same command resumes; Ctrl-C (or
+    SIGTERM) exits 130 saying how to resume."""
     import draccus
 
     configure_logging()
@@ -330,6 +331,15 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
     except FileNotFoundError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
+    except (
+        ImportError
+    ) as err:  # e.g. the package upgraded while a long command ran, then a module first imported
+        print(
+            f"error: {' '.join(str(err).split())}: the installed packages changed while the command ran, or one is "
+            "missing; reinstall from the lock if needed (bash setup.sh) and run the same command to resume",
+            file=sys.stderr,
+        )
+        sys.exit(1)
     except OSError as err:  # the machine: a full disk, an I/O error, a folder that became unwritable
         cause, first = machine_cause(err)
         print(f"error: {cause}: {first}run the same command to resume", file=sys.stderr)
