@@ -444,8 +444,6 @@ def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
 # Policy fields that change how a trained policy acts, not how it trains: ACT trained with n_action_steps 10 or with
 # 1 and temporal ensembling ends with the same weights, bit for bit (checked over 30 steps, 2026-12-06).
 READOUT_FIELDS = ("n_action_steps", "temporal_ensemble_coeff")
-# Policy fields that say where a policy runs or is stored, not what it is.
-PLACEMENT_FIELDS = ("device", "push_to_hub", "repo_id", "pretrained_path")
 # Runs whose data does not depend on the policy (a round-0 base, Uniform): they can be read again with another
 # readout without collecting again; every other arm's rounds evaluate the policy to choose their states.
 POLICY_FREE_ARMS = ("base", "uniform")
@@ -464,6 +462,10 @@ def copy_with_readout(src: Path, dst: Path, policy: dict) -> None:
     import lerobot.policies  # noqa: F401  (registers the policy types by name)
     from lerobot.configs.policies import PreTrainedConfig
 
+    from adademo_lerobot.loop.start import (
+        NOT_ARCHITECTURE,
+    )  # where a policy runs or is stored, not what it is
+
     defaults = PreTrainedConfig.get_choice_class(policy["type"])()
     readout = {f: policy.get(f, getattr(defaults, f)) for f in READOUT_FIELDS}
     kept = "train/round-*/checkpoints/*/pretrained_model/config.json"  # `last` links to one of them
@@ -472,7 +474,7 @@ def copy_with_readout(src: Path, dst: Path, policy: dict) -> None:
         differ = [
             k
             for k, v in policy.items()
-            if k not in (*READOUT_FIELDS, *PLACEMENT_FIELDS) and k in config and config[k] != v
+            if k not in (*READOUT_FIELDS, *NOT_ARCHITECTURE) and k in config and config[k] != v
         ]
         if differ:
             sys.exit(f"{config_path} differs from --recipe in {differ}: not a readout")

@@ -79,9 +79,8 @@ class CollectionResult:
     env_steps: int
     failed_attempts: int = 0
     start_step: int = 0  # a correction's step within the failed rollout (0: from the initial state)
-    takeover_failed: bool = (
-        False  # the expert failed from the takeover state (any demonstration is a fallback)
-    )
+    # The expert failed from the takeover state (any demonstration is a fallback).
+    takeover_failed: bool = False
 
 
 @dataclass

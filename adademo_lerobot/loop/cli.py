@@ -331,9 +331,8 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
     except FileNotFoundError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
-    except (
-        ImportError
-    ) as err:  # e.g. the package upgraded while a long command ran, then a module first imported
+    # An import that fails mid-run: e.g. the package upgraded under a long command, then a module first imported.
+    except ImportError as err:
         print(
             f"error: {' '.join(str(err).split())}: the installed packages changed while the command ran, or one is "
             "missing; reinstall from the lock if needed (bash setup.sh) and run the same command to resume",

@@ -235,7 +235,8 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     decided = strategy.start(ctx, started[0] if started else None)
     # The evaluation batch decides which states a round evaluates together (and their outcomes' seeds) and the
     # expert its demonstrations: fixed for the round, except in one journaled before they were recorded.
-    recorded_since = {"eval_batch_size": ctx.batch_size, "collector": cfg.collector.to_dict()}
+    expert = cfg.collector.to_dict()
+    recorded_since = {"eval_batch_size": ctx.batch_size, "collector": expert}
     if started:
         recorded_since = {k: v for k, v in recorded_since.items() if k in started[0]}
     journal.start(
@@ -247,7 +248,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
             **journaled_round_settings(cfg),
             **recorded_since,
         },
-        field_defaults=config_field_defaults({"collector": cfg.collector.to_dict()}),
+        field_defaults=config_field_defaults({"collector": expert}),
     )
     started_at = time.perf_counter()
     records = strategy.expand(ctx)
@@ -257,7 +258,7 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
         share_round_time(records, time.perf_counter() - started_at, journal)
     bar.close()
     for record in records:
-        record.collector = cfg.collector.to_dict()
+        record.collector = expert
         ctx.evaluation_cost(record.task, record)
         record.policy_episodes_kept = len(ctx.kept_successes(record.task))
         record.wall_seconds = round(journal.seconds(record.task), 3)

@@ -21,8 +21,8 @@ from adademo_lerobot.suites import SuiteConfig
 class RunState:
     """Finished stages of a run, plus the settings that define it (a rerun must keep them). `on_stage` hears
     `[done] NAME` for a stage an earlier invocation finished and `[run]  NAME` for one that runs (the command
-    prints them). A run started before a field of its strategy, suite, collector or takeover settings existed ran as that
-    field's default (`config_field_defaults`)."""
+    prints them). A run started before a field of its strategy, suite, collector or takeover settings existed ran
+    as that field's default (`config_field_defaults`)."""
 
     def __init__(self, run_dir: Path, settings: dict, on_stage: Callable[[str], None] | None = None):
         self.path = run_dir / "run_state.json"
@@ -120,9 +120,9 @@ CONFIG_REGISTRIES = {"strategy": StrategyConfig, "suite": SuiteConfig, "collecto
 
 
 def config_field_defaults(settings: dict) -> dict[str, dict]:
-    """Per config setting (the takeover's, and the strategy's, suite's and collector's of the type `settings` name): the
-    fields a run or round journaled before they existed ran as, their defaults (a new field's default keeps the
-    behaviour from before it, docs/extending.md), but `FIELDS_WITHOUT_A_PAST_DEFAULT`."""
+    """Per config setting (the takeover's, and the strategy's, suite's and collector's of the type `settings`
+    name): the fields a run or round journaled before they existed ran as, their defaults (a new field's default
+    keeps the behaviour from before it, docs/extending.md), but `FIELDS_WITHOUT_A_PAST_DEFAULT`."""
     defaults = {"takeover": TakeoverArgs().to_dict()}
     for name, registry in CONFIG_REGISTRIES.items():
         kind = settings.get(name, {}).get("type") if isinstance(settings.get(name), dict) else None

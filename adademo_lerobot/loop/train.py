@@ -504,9 +504,8 @@ def training_loop(
         if resumed_rng is not None:  # after the loader's first batch, which drew its base seed from torch's
             torch.set_rng_state(resumed_rng)  # generator (the interrupted run drew it before its first step)
             resumed_rng = None
-        for (
-            key
-        ) in camera_keys:  # LeRobot's dataset returns frames as uint8 (as stock lerobot-train converts them)
+        # LeRobot's dataset returns frames as uint8 (stock lerobot-train converts them as this does).
+        for key in camera_keys:
             if key in batch and batch[key].dtype == torch.uint8:
                 batch[key] = batch[key].to(torch.float32) / 255.0
         if mask is not None:

@@ -91,9 +91,8 @@ class RoundContext(JournaledRound):
     _lock: threading.RLock = field(default_factory=threading.RLock)
     # Set when one task's loop failed: the others stop at their next evaluation or demonstration.
     _aborted: threading.Event = field(default_factory=threading.Event)
-    eval_env_steps: int = (
-        0  # env steps of the evaluations this context ran (not those reused from the journal)
-    )
+    # Env steps of the evaluations this context ran (not those reused from the journal).
+    eval_env_steps: int = 0
     sync_each_entry = False  # the journal is synced at each commit (`OrderedAppender.flush`)
 
     def __post_init__(self) -> None:

@@ -394,9 +394,8 @@ class SuiteBase:
 
     env_class: type[SuiteTaskEnv]
     layout_dim: int  # environment_state without the task one-hot
-    restores_any_state = (
-        True  # `get_state()` / `reset(options={"state": ...})` at any step (corrections need it)
-    )
+    # `get_state()` / `reset(options={"state": ...})` at any step (corrections need it).
+    restores_any_state = True
 
     @property
     def env_state_dim(self) -> int:
