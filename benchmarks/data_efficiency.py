@@ -67,6 +67,7 @@ from pathlib import Path
 from _common import AVX2_KERNELS, BIN, RESULTS, ROOT, machine_line
 
 from adademo_lerobot.core.tables import table
+from adademo_lerobot.evaluation.policy import READOUT_FIELDS
 
 RECIPE = ROOT / "recipes" / "budgeted.yaml"
 SUMMARIES = RESULTS / "data_efficiency"  # committed: what `report` is built from
@@ -441,9 +442,6 @@ def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
             export_run(out, seed, arm)
 
 
-# Policy fields that change how a trained policy acts, not how it trains: ACT trained with n_action_steps 10 or with
-# 1 and temporal ensembling ends with the same weights, bit for bit (checked over 30 steps, 2026-12-06).
-READOUT_FIELDS = ("n_action_steps", "temporal_ensemble_coeff")
 # Runs whose data does not depend on the policy (a round-0 base, Uniform): they can be read again with another
 # readout without collecting again; every other arm's rounds evaluate the policy to choose their states.
 POLICY_FREE_ARMS = ("base", "uniform")
@@ -462,9 +460,8 @@ def copy_with_readout(src: Path, dst: Path, policy: dict) -> None:
     import lerobot.policies  # noqa: F401  (registers the policy types by name)
     from lerobot.configs.policies import PreTrainedConfig
 
-    from adademo_lerobot.loop.start import (
-        NOT_ARCHITECTURE,
-    )  # where a policy runs or is stored, not what it is
+    # Where a policy runs or is stored, not what it is.
+    from adademo_lerobot.loop.start import NOT_ARCHITECTURE
 
     defaults = PreTrainedConfig.get_choice_class(policy["type"])()
     readout = {f: policy.get(f, getattr(defaults, f)) for f in READOUT_FIELDS}

@@ -79,6 +79,53 @@ def test_eval_runs_a_stock_lerobot_train_checkpoint(stock_act_checkpoint, reach_
     assert len(records) == 4 and set(records.task) == {"reach-v3", "push-v3"}
 
 
+def test_eval_reads_a_checkpoint_by_another_readout(act_run, reach_push_dataset, tmp_path):
+    """--policy.n_action_steps/--policy.temporal_ensemble_coeff: the same weights acting by ACT's temporal
+    ensembling, exactly as a checkpoint whose config.json says so, and not as the checkpoint itself acts."""
+    import shutil
+
+    ckpt = act_run / "checkpoints" / "last" / "pretrained_model"
+    stored = (ckpt / "config.json").read_text()
+    out = tmp_path / "eval"
+    ensembled = ["--policy.n_action_steps=1", "--policy.temporal_ensemble_coeff=0.01"]
+    common = [f"--policy.path={ckpt}", f"--dataset.root={reach_push_dataset}", "--episodes_per_task=2"]
+    run_cli("adademo-eval", *common, *ensembled, "--seed=5", f"--output_dir={out}")
+    summary = json.loads((out / "eval_summary.json").read_text())
+    assert summary["readout"] == {"n_action_steps": 1, "temporal_ensemble_coeff": 0.01}
+    assert summary["policy_path"] == str(ckpt) and (ckpt / "config.json").read_text() == stored
+    linked = out / "policy_readout" / "model.safetensors"
+    assert linked.is_symlink() and linked.resolve() == (ckpt / "model.safetensors").resolve()
+
+    # The same episodes as a copy of the checkpoint with its config.json edited by hand; others than its own.
+    edited = tmp_path / "edited"
+    shutil.copytree(ckpt, edited)
+    config = json.loads(stored) | {"n_action_steps": 1, "temporal_ensemble_coeff": 0.01}
+    (edited / "config.json").write_text(json.dumps(config))
+    suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))
+    records = pd.read_parquet(out / "eval_episodes.parquet")
+    for task in ("reach-v3", "push-v3"):
+        seeds = evaluation_seeds(5, task, 2)
+        rows = records[records.task == task]
+        by_hand = BatchedEvaluator(suite, load_policy(edited), batch_size=2).run(task, seeds)
+        assert [(r.seed, r.success, r.steps) for r in by_hand] == list(zip(rows.seed, rows.success, rows.steps))
+        np.testing.assert_allclose([r.sum_reward for r in by_hand], rows.sum_reward, rtol=1e-3)
+        own = BatchedEvaluator(suite, load_policy(ckpt), batch_size=2).run(task, seeds)
+        assert not np.allclose([r.sum_reward for r in own], rows.sum_reward, rtol=1e-3)
+
+    # Values LeRobot's config refuses: one line, nothing written; a second evaluation replaces its readout folder.
+    bad = tmp_path / "bad"
+    for flags, match in [
+        (["--policy.temporal_ensemble_coeff=0.01"], "`n_action_steps` must be 1 when using temporal ensembling"),
+        (["--policy.n_action_steps=11"], "The chunk size is the upper bound"),
+        (["--policy.n_action_steps=0"], "--policy.n_action_steps must be >= 1, got 0"),
+    ]:
+        assert_cli_error("adademo-eval", *common, *flags, f"--output_dir={bad}", match=match)
+    assert not bad.exists()
+    run_cli("adademo-eval", *common, "--policy.n_action_steps=2", f"--output_dir={out}")
+    assert json.loads((out / "policy_readout" / "config.json").read_text())["n_action_steps"] == 2
+    assert not list(out.glob("policy_readout.*"))
+
+
 def test_batching_does_not_change_outcomes(act_run):
     """Each sub-env starts from its own requested state: batch size 3 and batch size 1 agree episode by episode."""
     suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3"))

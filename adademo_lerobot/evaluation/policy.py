@@ -14,6 +14,10 @@ from typing import Any
 from adademo_lerobot.core.errors import AdaDemoError
 
 POLICY_TYPES = ("act", "diffusion")
+# How a trained policy turns its predictions into actions, not what it learned: a checkpoint read with other values
+# is the same policy acting otherwise (ACT trained with n_action_steps 10, or 1 and temporal ensembling, ends with
+# the same weights bit for bit: checked over 30 steps, 2026-12-06).
+READOUT_FIELDS = ("n_action_steps", "temporal_ensemble_coeff")
 
 
 @dataclass
@@ -87,6 +91,45 @@ def check_policy(path: str | Path, features: dict[str, dict]):
         raise AdaDemoError(f"{path} holds a {cfg.type!r} policy; adademo supports {', '.join(POLICY_TYPES)}")
     check_policy_matches_features(cfg, features)
     return cfg
+
+
+def policy_with_readout(path: str | Path, readout: dict, folder: Path) -> Path:
+    """The checkpoint at `path` acting by `readout` (values of READOUT_FIELDS): `folder` gets its config.json with
+    them and links to its other files (the weights are not copied), a checkpoint stock `lerobot-eval` also loads.
+    Refused in one line, before `folder` is written, if the policy has no such field or LeRobot's config checks
+    reject the values. Returns `folder`."""
+    import dataclasses
+    import json
+    import os
+    import shutil
+
+    path = check_checkpoint_folder(path)
+    config = read_policy_config(path)
+    for name, value in readout.items():
+        if name not in READOUT_FIELDS or not hasattr(config, name):
+            raise AdaDemoError(f"--policy.{name}: a {config.type} policy has no such setting; drop the flag")
+        if name == "n_action_steps" and value < 1:
+            raise AdaDemoError(f"--policy.n_action_steps must be >= 1, got {value}")
+    try:
+        dataclasses.replace(config, **readout)  # LeRobot's own checks (__post_init__) on the values
+    except (ValueError, NotImplementedError) as e:
+        raise AdaDemoError(f"{', '.join(f'--policy.{k}={v}' for k, v in readout.items())}: {e}") from None
+    if folder.exists():  # ours from an earlier evaluation: a config.json and links, replaced
+        if any(f.name != "config.json" and not f.is_symlink() for f in folder.iterdir()):
+            raise AdaDemoError(
+                f"{folder} exists and is not a readout folder of adademo-eval; pick another --output_dir"
+            )
+        shutil.rmtree(folder)
+    tmp = folder.with_name(folder.name + ".writing")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for f in path.iterdir():
+        if f.name != "config.json":
+            os.symlink(f.resolve(), tmp / f.name)
+    stored = json.loads((path / "config.json").read_text())
+    (tmp / "config.json").write_text(json.dumps(stored | readout, indent=4))
+    tmp.rename(folder)
+    return folder
 
 
 def load_checked_policy(path: str | Path, features: dict[str, dict], device: str = "cpu") -> LoadedPolicy:

@@ -9,6 +9,7 @@ from adademo_lerobot.collectors import CollectorConfig, ScriptedCollectorConfig
 from adademo_lerobot.collectors.takeover import DEMO_STARTS, TakeoverArgs, check_demo_start
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.dataset.metadata import has_dataset
+from adademo_lerobot.evaluation.policy import READOUT_FIELDS
 from adademo_lerobot.executors import ComputeArgs, ExecutionArgs, ThreadArgs
 from adademo_lerobot.samplers import check_sampler_flags
 from adademo_lerobot.strategies import StrategyConfig, default_strategy
@@ -100,6 +101,18 @@ class PolicyPathArgs:
 
 
 @dataclass
+class EvalPolicyArgs(PolicyPathArgs):
+    # How the checkpoint acts, over its config.json (stock lerobot-eval's flags of the same names); unset keeps the
+    # checkpoint's. ACT's temporal ensembling: --policy.n_action_steps=1 --policy.temporal_ensemble_coeff=0.01.
+    n_action_steps: int | None = None
+    temporal_ensemble_coeff: float | None = None
+
+    def readout(self) -> dict:
+        """The readout settings given, by name."""
+        return {f: getattr(self, f) for f in READOUT_FIELDS if getattr(self, f) is not None}
+
+
+@dataclass
 class EvalBatchArgs:
     # Episodes run side by side (one SyncVectorEnv); the policy sees a batch of this size.
     batch_size: int = 10
@@ -107,7 +120,7 @@ class EvalBatchArgs:
 
 @dataclass
 class EvalCommandConfig(ExecutionArgs):
-    policy: PolicyPathArgs = field(default_factory=PolicyPathArgs)
+    policy: EvalPolicyArgs = field(default_factory=EvalPolicyArgs)
     # The suite is rebuilt from the dataset (meta/adademo/suite.json; --suite.tasks picks a subset of its tasks);
     # without a dataset, from --suite.*.
     dataset: DatasetArgs = field(default_factory=DatasetArgs)
