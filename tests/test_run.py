@@ -252,7 +252,7 @@ def test_a_changed_learning_rate_schedule_is_refused_on_resume_but_an_older_run_
     from adademo_lerobot.loop.run_state import RunState
 
     RunState(tmp_path, {"strategy": "adademo", "lr_schedule": "preset"})
-    with pytest.raises(AdaDemoError, match="lr_schedule"):
+    with pytest.raises(AdaDemoError, match="lr_schedule: 'preset' -> 'cosine'"):
         RunState(tmp_path, {"strategy": "adademo", "lr_schedule": "cosine"})
     older = tmp_path / "older"  # started before lr_schedule was recorded: it used the policy's preset
     older.mkdir()
@@ -325,10 +325,11 @@ def test_a_run_started_before_a_config_field_existed_resumes_as_that_field_s_def
     now = {"strategy": AdaDemoConfig(budget=[40, 60]).to_dict(), **later}
     assert RunState(journal(tmp_path / "off", {"strategy": journaled}), now).done
     limited = {"strategy": AdaDemoConfig(budget=[40, 60], limit_disagreeing=True).to_dict(), **later}
-    with pytest.raises(AdaDemoError, match="strategy"):
+    with pytest.raises(AdaDemoError, match="strategy.limit_disagreeing: False -> True"):
         RunState(journal(tmp_path / "on", {"strategy": journaled}), limited)
     changed = {"strategy": AdaDemoConfig(budget=[40, 80]).to_dict(), **later}
-    with pytest.raises(AdaDemoError, match="strategy"):  # nor does a field missing let another one change
+    # Nor does a field missing let another one change; the refusal names the field, not the whole strategy.
+    with pytest.raises(AdaDemoError, match=r"\(strategy.budget: \[40, 60\] -> \[40, 80\]\);"):
         RunState(journal(tmp_path / "budget", {"strategy": journaled}), changed)
 
 

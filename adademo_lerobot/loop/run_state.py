@@ -14,6 +14,7 @@ from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import atomic_write_text
+from adademo_lerobot.dataset.ledger import setting_changes
 from adademo_lerobot.strategies import StrategyConfig
 from adademo_lerobot.suites import SuiteConfig
 
@@ -50,8 +51,10 @@ class RunState:
                 and (k in FIXED_SETTINGS or k in FIXED_SINCE_RECORDED and k in state["settings"])
             )
             if diffs:
+                before = state["settings"]
+                changes = [c for k in diffs for c in setting_changes(k, before.get(k), settings.get(k))]
                 raise AdaDemoError(
-                    f"{run_dir} was started with other settings ({', '.join(diffs)}); "
+                    f"{run_dir} was started with other settings ({'; '.join(changes)}); "
                     "rerun with the same recipe and flags, or use another --run_dir"
                 )
             self.done = state["done"]
