@@ -31,6 +31,7 @@ from types import MappingProxyType
 from typing import Any
 
 from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_cause
+from adademo_lerobot.core.interrupts import raise_keyboard_interrupt
 from adademo_lerobot.loop.configs import LEROBOT_CHOICE
 
 
@@ -271,10 +272,6 @@ def _resolve(target: str | Callable) -> Any:
     return getattr(importlib.import_module(module), name)
 
 
-def _interrupted_by_signal(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def _close_progress_bars() -> None:
     """Progress bars still open when a command fails end their line first, so that the `error:` line is the
     command's last line, on a line of its own."""
@@ -298,7 +295,7 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
     configure_logging()
     argv = sys.argv[1:]
     if threading.current_thread() is threading.main_thread():  # SIGTERM stops a command as Ctrl-C does
-        signal.signal(signal.SIGTERM, _interrupted_by_signal)
+        signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
     try:
         try:
             check_moved_flags(config_cls, argv)

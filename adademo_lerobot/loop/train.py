@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_cause
 from adademo_lerobot.core.files import check_writable_location
+from adademo_lerobot.core.interrupts import HeldInterrupts
 from adademo_lerobot.core.progress import show
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
@@ -52,6 +53,7 @@ log = logging.getLogger(__name__)
 # near-zero std turns float noise at evaluation time into huge inputs.
 MIN_STD = 1e-2
 ADADEMO_TRAIN_INFO = "adademo_train.json"
+SAVED_ON_INTERRUPT = "saved_on_interrupt"  # in ADADEMO_TRAIN_INFO: see `saved_on_interrupt`
 
 
 # lerobot-train flags this training loop does not implement (it trains one policy on one local dataset, and
@@ -247,6 +249,16 @@ def save_whole_checkpoint(
     shutil.rmtree(checkpoint_dir, ignore_errors=True)
     os.replace(partial, checkpoint_dir)
     update_last_checkpoint(checkpoint_dir)
+    for older in checkpoint_dir.parent.glob("[0-9]*"):  # saved on an interrupt, only to resume from
+        if older.name.isdigit() and int(older.name) < step and saved_on_interrupt(older):
+            shutil.rmtree(older)
+
+
+def saved_on_interrupt(checkpoint_dir: Path) -> bool:
+    """A checkpoint written where Ctrl-C stopped the training (not at a `--save_freq` step): removed once a later
+    one is written, so an interrupted and resumed training keeps the checkpoints of an uninterrupted one."""
+    info = checkpoint_dir / "pretrained_model" / ADADEMO_TRAIN_INFO
+    return info.exists() and bool(json.loads(info.read_text()).get(SAVED_ON_INTERRUPT))
 
 
 def train(cfg: AdaDemoTrainConfig) -> Path:
@@ -500,59 +512,67 @@ def training_loop(
         disable=not accelerator.is_main_process,
     )
     data_start = time.perf_counter()
-    for batch in dataloader:
-        if resumed_rng is not None:  # after the loader's first batch, which drew its base seed from torch's
-            torch.set_rng_state(resumed_rng)  # generator (the interrupted run drew it before its first step)
-            resumed_rng = None
-        # LeRobot's dataset returns frames as uint8 (stock lerobot-train converts them as this does).
-        for key in camera_keys:
-            if key in batch and batch[key].dtype == torch.uint8:
-                batch[key] = batch[key].to(torch.float32) / 255.0
-        if mask is not None:
-            mask(batch)
-        batch = preprocessor(batch)
-        tracker.dataloading_s = time.perf_counter() - data_start
-        tracker, output = update_policy(
-            tracker,
-            policy,
-            batch,
-            optimizer,
-            cfg.optimizer.grad_clip_norm,
-            accelerator=accelerator,
-            lr_scheduler=lr_scheduler,
-        )
-        step += 1
-        tracker.step()
-        bar.update(1)
-        show(
-            bar,
-            loss=f"{tracker.loss.val:.3f}",
-            steps_s=f"{(step - start_step) / (time.perf_counter() - start):.1f}",
-        )
-        if cfg.log_freq > 0 and step % cfg.log_freq == 0:
-            if accelerator.is_main_process:
-                tqdm.write(str(tracker))  # to stdout, above the progress bar
-                if wandb_logger:
-                    wandb_logger.log_dict({**tracker.to_dict(), **(output or {})}, step)
-            tracker.reset_averages()
-        if step % cfg.save_freq == 0 or step == cfg.steps:
-            if accelerator.is_main_process:
-                save_whole_checkpoint(
-                    cfg,
-                    step,
-                    accelerator.unwrap_model(policy),
-                    optimizer,
-                    lr_scheduler,
-                    preprocessor,
-                    postprocessor,
-                    info,
-                    accelerator.num_processes,
-                )
-            accelerator.wait_for_everyone()
-        if step >= cfg.steps:
-            break
-        data_start = time.perf_counter()
+    # A first Ctrl-C (or SIGTERM) finishes the step and saves it, so a rerun loses no step; a second stops at once.
+    with HeldInterrupts(enabled=accelerator.num_processes == 1) as held:
+        for batch in dataloader:
+            # After the loader's first batch, which drew its base seed from torch's generator (the interrupted
+            # run drew it before its first step).
+            if resumed_rng is not None:
+                torch.set_rng_state(resumed_rng)
+                resumed_rng = None
+            # LeRobot's dataset returns frames as uint8 (stock lerobot-train converts them as this does).
+            for key in camera_keys:
+                if key in batch and batch[key].dtype == torch.uint8:
+                    batch[key] = batch[key].to(torch.float32) / 255.0
+            if mask is not None:
+                mask(batch)
+            batch = preprocessor(batch)
+            tracker.dataloading_s = time.perf_counter() - data_start
+            tracker, output = update_policy(
+                tracker,
+                policy,
+                batch,
+                optimizer,
+                cfg.optimizer.grad_clip_norm,
+                accelerator=accelerator,
+                lr_scheduler=lr_scheduler,
+            )
+            step += 1
+            tracker.step()
+            bar.update(1)
+            show(
+                bar,
+                loss=f"{tracker.loss.val:.3f}",
+                steps_s=f"{(step - start_step) / (time.perf_counter() - start):.1f}",
+            )
+            if cfg.log_freq > 0 and step % cfg.log_freq == 0:
+                if accelerator.is_main_process:
+                    tqdm.write(str(tracker))  # to stdout, above the progress bar
+                    if wandb_logger:
+                        wandb_logger.log_dict({**tracker.to_dict(), **(output or {})}, step)
+                tracker.reset_averages()
+            scheduled = step % cfg.save_freq == 0 or step == cfg.steps
+            if scheduled or held.requested:
+                if accelerator.is_main_process:
+                    save_whole_checkpoint(
+                        cfg,
+                        step,
+                        accelerator.unwrap_model(policy),
+                        optimizer,
+                        lr_scheduler,
+                        preprocessor,
+                        postprocessor,
+                        info if scheduled else {**info, SAVED_ON_INTERRUPT: True},
+                        accelerator.num_processes,
+                    )
+                accelerator.wait_for_everyone()
+            if step >= cfg.steps or held.requested:
+                break
+            data_start = time.perf_counter()
     bar.close()
+    if held.requested:
+        log.info("stopped at step %d and saved it (%s)", step, find_last_checkpoint(cfg.output_dir))
+        raise KeyboardInterrupt
     elapsed = time.perf_counter() - start
     log.info(
         "trained %d steps in %.1f s (%.1f steps/s); checkpoint: %s",
