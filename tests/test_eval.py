@@ -95,6 +95,8 @@ def test_eval_reads_a_checkpoint_by_another_readout(act_run, reach_push_dataset,
     assert summary["policy_path"] == str(ckpt) and (ckpt / "config.json").read_text() == stored
     linked = out / "policy_readout" / "model.safetensors"
     assert linked.is_symlink() and linked.resolve() == (ckpt / "model.safetensors").resolve()
+    record = json.loads((out / "policy_readout" / "readout.json").read_text())
+    assert record == {"from": str(ckpt.resolve()), "readout": summary["readout"]}
 
     # The same episodes as a copy of the checkpoint with its config.json edited by hand; others than its own.
     edited = tmp_path / "edited"
@@ -125,6 +127,39 @@ def test_eval_reads_a_checkpoint_by_another_readout(act_run, reach_push_dataset,
     run_cli("adademo-eval", *common, "--policy.n_action_steps=2", f"--output_dir={out}")
     assert json.loads((out / "policy_readout" / "config.json").read_text())["n_action_steps"] == 2
     assert not list(out.glob("policy_readout.*"))
+    # A folder of that name that is not ours, or the readout folder as the policy to read: refused, kept.
+    assert_cli_error(
+        "adademo-eval", *common[1:], f"--policy.path={out / 'policy_readout'}", "--policy.n_action_steps=3",
+        f"--output_dir={out}", match="is inside",
+    )  # fmt: skip
+    (bad / "policy_readout").mkdir(parents=True)
+    (bad / "policy_readout" / "notes.txt").write_text("mine")
+    assert_cli_error(
+        "adademo-eval", *common, "--policy.n_action_steps=2", f"--output_dir={bad}", match="not a readout"
+    )
+    assert sorted(p.relative_to(bad).as_posix() for p in bad.rglob("*")) == [
+        "policy_readout",
+        "policy_readout/notes.txt",
+    ]
+
+
+def test_a_readout_the_policy_cannot_act_by_is_refused(tmp_path):
+    """Diffusion has no temporal ensembling, and predicts horizon - n_obs_steps + 1 actions from the current step
+    (LeRobot would run fewer than asked without a word)."""
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+
+    from adademo_lerobot.evaluation.policy import check_readout
+
+    checkpoint = tmp_path / "diffusion"
+    checkpoint.mkdir()
+    DiffusionConfig(horizon=16, n_obs_steps=2, n_action_steps=8)._save_pretrained(checkpoint)
+    (checkpoint / "model.safetensors").write_bytes(b"")  # only the config is read
+    with pytest.raises(AdaDemoError, match="a diffusion policy has no such setting"):
+        check_readout(checkpoint, {"temporal_ensemble_coeff": 0.01}, tmp_path / "out")
+    with pytest.raises(AdaDemoError, match="this policy predicts 15 actions .* pass at most 15"):
+        check_readout(checkpoint, {"n_action_steps": 16}, tmp_path / "out")
+    check_readout(checkpoint, {"n_action_steps": 15}, tmp_path / "out")
+    assert list(tmp_path.iterdir()) == [checkpoint]
 
 
 def test_batching_does_not_change_outcomes(act_run):

@@ -177,7 +177,11 @@ from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
 address, ckpt = sys.argv[1:]
 suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3", max_episode_steps=100))
+import signal
+from adademo_lerobot.core.interrupts import raise_keyboard_interrupt
+signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # as the commands set it
 executor = RayExecutor(RayArgs(address=address, num_workers=2), suite, ScriptedCollectorConfig(), 2, "cpu")
+sigterm_kept = signal.getsignal(signal.SIGTERM) is raise_keyboard_interrupt  # ray.init replaces it
 executor.use_policy(ckpt)
 def worker_of(ref):
     return next(i for i, calls in enumerate(executor._inflight) if any(r == ref for r, _ in calls))
@@ -197,7 +201,7 @@ for pending, _, _ in burst:
     pending.result()
 executor._drop_finished()
 print(json.dumps({"placed": placed, "burst": [i for _, i, _ in burst], "calls": len({c for _, _, c in burst}),
-                  "same": same, "left": executor._load}))
+                  "same": same, "left": executor._load, "sigterm_kept": sigterm_kept}))
 executor.close()
 """
 
@@ -224,6 +228,7 @@ def test_a_tasks_units_go_to_the_worker_that_ran_it_last(ray_address, ckpt):
     assert result["calls"] == 2, result  # 6 units, 2 workers: 3 per call, one call per worker
     assert result["same"], result  # a unit's demonstration does not depend on the call that carried it
     assert result["left"] == [0, 0], result  # finished units are no longer counted
+    assert result["sigterm_kept"], result  # SIGTERM still stops a command as Ctrl-C does, after ray.init
 
 
 @pytest.mark.slow

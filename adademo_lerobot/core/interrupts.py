@@ -44,3 +44,11 @@ class HeldInterrupts:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
         self._previous.clear()
+
+
+def ignore_interrupts(*_) -> None:
+    """A DataLoader worker's `worker_init_fn`: a terminal's Ctrl-C (or a SIGTERM to the process group) reaches the
+    loader's workers too, and a worker that quits on it leaves a held training waiting for a batch that never
+    comes; the main process ends the workers itself when it stops."""
+    for sig in SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)

@@ -18,6 +18,7 @@ POLICY_TYPES = ("act", "diffusion")
 # is the same policy acting otherwise (ACT trained with n_action_steps 10, or 1 and temporal ensembling, ends with
 # the same weights bit for bit: checked over 30 steps, 2026-12-06).
 READOUT_FIELDS = ("n_action_steps", "temporal_ensemble_coeff")
+READOUT_RECORD = "readout.json"  # in a readout folder: the checkpoint it reads and how
 
 
 @dataclass
@@ -93,41 +94,58 @@ def check_policy(path: str | Path, features: dict[str, dict]):
     return cfg
 
 
-def policy_with_readout(path: str | Path, readout: dict, folder: Path) -> Path:
-    """The checkpoint at `path` acting by `readout` (values of READOUT_FIELDS): `folder` gets its config.json with
-    them and links to its other files (the weights are not copied), a checkpoint stock `lerobot-eval` also loads.
-    Refused in one line, before `folder` is written, if the policy has no such field or LeRobot's config checks
-    reject the values. Returns `folder`."""
+def check_readout(path: str | Path, readout: dict, folder: Path) -> None:
+    """Refuse, in one line, a `readout` (values of READOUT_FIELDS) that the checkpoint at `path` cannot act by, or
+    a `folder` that is not ours to write it into (`write_readout_policy`)."""
     import dataclasses
+
+    path = check_checkpoint_folder(path)
+    config = read_policy_config(path)
+    given = ", ".join(f"--policy.{k}={v}" for k, v in readout.items())
+    for name in readout:
+        if name not in READOUT_FIELDS or not hasattr(config, name):
+            raise AdaDemoError(f"--policy.{name}: a {config.type} policy has no such setting; drop the flag")
+    steps = readout.get("n_action_steps", 1)
+    if steps < 1:
+        raise AdaDemoError(f"--policy.n_action_steps must be >= 1, got {steps}")
+    if hasattr(config, "horizon"):  # Diffusion: LeRobot would run fewer without a word
+        most = config.horizon - config.n_obs_steps + 1
+        if steps > most:
+            raise AdaDemoError(
+                f"--policy.n_action_steps={steps}: this policy predicts {most} actions from the current step on "
+                f"(horizon {config.horizon} - n_obs_steps {config.n_obs_steps} + 1); pass at most {most}"
+            )
+    try:
+        dataclasses.replace(config, **readout)  # LeRobot's own checks (__post_init__) on the values
+    except (ValueError, NotImplementedError) as e:
+        raise AdaDemoError(f"{given}: {e}") from None
+    if folder.is_symlink() or folder.exists() and not (folder / READOUT_RECORD).is_file():
+        raise AdaDemoError(
+            f"{folder} exists and is not a readout folder adademo-eval wrote; pick another --output_dir"
+        )
+    if folder.resolve() in (path.resolve(), *path.resolve().parents):
+        raise AdaDemoError(f"--policy.path={path} is inside {folder}, which this evaluation rewrites")
+
+
+def write_readout_policy(path: str | Path, readout: dict, folder: Path) -> Path:
+    """The checkpoint at `path` acting by `readout` (checked by `check_readout`): `folder` gets its config.json
+    with them, links to its other files (the weights are not copied) and READOUT_RECORD; a checkpoint that stock
+    `lerobot-eval` loads too. Written beside `folder` and renamed into place. Returns `folder`."""
     import json
     import os
     import shutil
 
-    path = check_checkpoint_folder(path)
-    config = read_policy_config(path)
-    for name, value in readout.items():
-        if name not in READOUT_FIELDS or not hasattr(config, name):
-            raise AdaDemoError(f"--policy.{name}: a {config.type} policy has no such setting; drop the flag")
-        if name == "n_action_steps" and value < 1:
-            raise AdaDemoError(f"--policy.n_action_steps must be >= 1, got {value}")
-    try:
-        dataclasses.replace(config, **readout)  # LeRobot's own checks (__post_init__) on the values
-    except (ValueError, NotImplementedError) as e:
-        raise AdaDemoError(f"{', '.join(f'--policy.{k}={v}' for k, v in readout.items())}: {e}") from None
-    if folder.exists():  # ours from an earlier evaluation: a config.json and links, replaced
-        if any(f.name != "config.json" and not f.is_symlink() for f in folder.iterdir()):
-            raise AdaDemoError(
-                f"{folder} exists and is not a readout folder of adademo-eval; pick another --output_dir"
-            )
-        shutil.rmtree(folder)
+    path = Path(path)
     tmp = folder.with_name(folder.name + ".writing")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     for f in path.iterdir():
-        if f.name != "config.json":
+        if f.name not in ("config.json", READOUT_RECORD):
             os.symlink(f.resolve(), tmp / f.name)
     stored = json.loads((path / "config.json").read_text())
     (tmp / "config.json").write_text(json.dumps(stored | readout, indent=4))
+    (tmp / READOUT_RECORD).write_text(json.dumps({"from": str(path.resolve()), "readout": readout}, indent=2))
+    shutil.rmtree(folder, ignore_errors=True)  # ours from an earlier evaluation (check_readout)
     tmp.rename(folder)
     return folder
 

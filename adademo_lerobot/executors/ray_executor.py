@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import re
+import signal
 import socket
 import threading
 import time
@@ -235,6 +236,9 @@ class RayExecutor:
         self.batch_size = batch_size
         self._started_ray = not ray.is_initialized()
         if self._started_ray:
+            # ray.init makes SIGTERM exit at once (status 15, no message, no held training step): the caller's
+            # handler comes back after it.
+            sigterm = signal.getsignal(signal.SIGTERM)
             try:
                 ray.init(
                     address=args.address,
@@ -248,6 +252,9 @@ class RayExecutor:
                 raise AdaDemoError(
                     f"cannot start or reach {where}: {' '.join(str(err).split())[:200]}"
                 ) from None
+            finally:
+                if sigterm is not None and threading.current_thread() is threading.main_thread():
+                    signal.signal(signal.SIGTERM, sigterm)
         self._watch = ClusterWatch(args)
         threads = max(1, int(args.num_cpus_per_worker))
         actor = ray.remote(EpisodeWorker).options(

@@ -96,7 +96,7 @@ def suite_to_evaluate(dataset_root: str | None, flags: SuiteConfig) -> tuple[Sui
 def run_eval(cfg) -> pd.DataFrame:
     """`adademo-eval`."""
     from adademo_lerobot.dataset.features import dataset_features
-    from adademo_lerobot.evaluation.policy import check_policy, policy_with_readout
+    from adademo_lerobot.evaluation.policy import check_policy, check_readout, write_readout_policy
     from adademo_lerobot.suites import make_suite
 
     if cfg.policy.path is None:
@@ -109,11 +109,15 @@ def run_eval(cfg) -> pd.DataFrame:
     suite_config, tasks = suite_to_evaluate(cfg.dataset.root, cfg.suite)
     suite = make_suite(suite_config)
     check_policy(cfg.policy.path, dataset_features(suite))
+    # The same weights acting otherwise: a config of its own beside the records, linking the rest.
     policy_path, readout = Path(cfg.policy.path), cfg.policy.readout()
-    if readout:  # the same weights acting otherwise: a config of its own beside the records, linking the rest
-        policy_path = policy_with_readout(policy_path, readout, Path(cfg.output_dir) / "policy_readout")
+    readout_folder = Path(cfg.output_dir) / "policy_readout"
+    if readout:
+        check_readout(policy_path, readout, readout_folder)
     executor = make_executor(cfg, suite, ScriptedCollectorConfig(), cfg.eval.batch_size)
     try:
+        if readout:
+            policy_path = write_readout_policy(policy_path, readout, readout_folder)
         executor.use_policy(str(policy_path))
         records, env_steps, elapsed = evaluate_fixed_set(
             suite, executor, cfg.seed, cfg.episodes_per_task, tasks

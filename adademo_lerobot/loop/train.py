@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_cause
 from adademo_lerobot.core.files import check_writable_location
-from adademo_lerobot.core.interrupts import HeldInterrupts
+from adademo_lerobot.core.interrupts import HeldInterrupts, ignore_interrupts
 from adademo_lerobot.core.progress import show
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
@@ -251,7 +251,10 @@ def save_whole_checkpoint(
     update_last_checkpoint(checkpoint_dir)
     for older in checkpoint_dir.parent.glob("[0-9]*"):  # saved on an interrupt, only to resume from
         if older.name.isdigit() and int(older.name) < step and saved_on_interrupt(older):
-            shutil.rmtree(older)
+            # Renamed first: a kill during the removal leaves no half checkpoint under a step's name.
+            older.rename(older.with_name(older.name + ".removing"))
+    for removing in checkpoint_dir.parent.glob("*.removing"):
+        shutil.rmtree(removing)
 
 
 def saved_on_interrupt(checkpoint_dir: Path) -> bool:
@@ -455,6 +458,7 @@ def weighted_loader(cfg: AdaDemoTrainConfig, dataset, episodes, scheme, step: in
                 "prefetch_factor": cfg.prefetch_factor,
                 "persistent_workers": cfg.persistent_workers,
                 "multiprocessing_context": cfg.dataloader_multiprocessing_context,
+                "worker_init_fn": ignore_interrupts,  # the training stops them (HeldInterrupts)
             }
     return torch.utils.data.DataLoader(
         frames,
@@ -551,8 +555,8 @@ def training_loop(
                     if wandb_logger:
                         wandb_logger.log_dict({**tracker.to_dict(), **(output or {})}, step)
                 tracker.reset_averages()
-            scheduled = step % cfg.save_freq == 0 or step == cfg.steps
-            if scheduled or held.requested:
+            scheduled, stop = step % cfg.save_freq == 0 or step == cfg.steps, held.requested
+            if scheduled or stop:
                 if accelerator.is_main_process:
                     save_whole_checkpoint(
                         cfg,
@@ -566,10 +570,11 @@ def training_loop(
                         accelerator.num_processes,
                     )
                 accelerator.wait_for_everyone()
-            if step >= cfg.steps or held.requested:
+            if step >= cfg.steps or stop:
                 break
             data_start = time.perf_counter()
     bar.close()
+    # At the last step too (its checkpoint is written): the command stops, as asked.
     if held.requested:
         log.info("stopped at step %d and saved it (%s)", step, find_last_checkpoint(cfg.output_dir))
         raise KeyboardInterrupt
