@@ -185,7 +185,8 @@ def test_ctrl_c_saves_the_step_it_stopped_at_and_the_resumed_training_equals_an_
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: to the command and its loader worker
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err[-2000:]
-    assert err.strip().splitlines()[-1] == "interrupted: rerun the same command to resume"
+    resume = "interrupted: rerun the same command with --resume=true to continue from the last checkpoint"
+    assert err.strip().splitlines()[-1] == resume
     step = int(re.search(r"stopped at step (\d+) and saved it", out + err).group(1))
     assert 50 <= step < 150, step  # the signal came after step 50's checkpoint, long before the end
     held = find_last_checkpoint(stopped)

@@ -257,3 +257,29 @@ def test_disk_full_while_writing_a_checkpoint_keeps_the_last_complete_one(reach_
         assert (checkpoints / "last").resolve().name == "000004"
     finally:
         subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def test_a_killed_write_is_rolled_back_by_the_next_command_but_not_one_under_way(
+    reach_push_dataset, tmp_path
+):
+    """A write a kill left half-done (its transaction file, a new file, a rewritten one) is rolled back by the next
+    command that reads or checks the dataset (adademo-train, adademo-record, adademo-run's start), unless another
+    command holds the dataset: then its write is under way, not killed, and the command is refused instead."""
+    from adademo_lerobot.core.errors import AdaDemoError
+    from adademo_lerobot.core.files import exclusive_use
+    from adademo_lerobot.dataset.store import REWRITTEN_META, _begin_write, recover_unless_in_use
+
+    root = tmp_path / "ds"
+    shutil.copytree(reach_push_dataset, root)
+    before = dataset_files(root)
+    _begin_write(root, list(REWRITTEN_META))  # as a write does before its first file
+    stray = root / "data" / "chunk-000" / "file-999.parquet"
+    stray.write_bytes(b"half a file")
+    (root / "meta" / "info.json").write_text("{}")  # rewritten, not yet committed
+    with exclusive_use(root, "adademo-expand"):  # the writer is alive
+        with pytest.raises(AdaDemoError, match="in use by another running adademo command"):
+            recover_unless_in_use(root, "adademo-train")
+        assert stray.exists() and (root / TXN_FILE).exists()
+    recover_unless_in_use(root, "adademo-train")  # the writer was killed
+    assert dataset_files(root) == before and not (root / TXN_FILE).exists()
+    assert stock_episodes(root) == 6

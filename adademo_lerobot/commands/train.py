@@ -6,7 +6,10 @@ from adademo_lerobot.loop.configs import TrainCommandFlags
 
 def main() -> None:
     run_command(
-        "adademo_lerobot.loop.train:train", TrainCommandFlags, "adademo_lerobot.loop.train:AdaDemoTrainConfig"
+        "adademo_lerobot.loop.train:train",
+        TrainCommandFlags,
+        "adademo_lerobot.loop.train:AdaDemoTrainConfig",
+        resume="rerun the same command with --resume=true to continue from the last checkpoint",
     )
 
 

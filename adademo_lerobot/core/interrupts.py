@@ -1,17 +1,50 @@
-"""Ctrl-C and SIGTERM: commands stop on either (`raise_keyboard_interrupt`); a loop that can save where it is holds
-the first one until its current step is done (`HeldInterrupts`), so a rerun loses no finished work."""
+"""Ctrl-C, SIGTERM and SIGHUP (a closed terminal): commands stop on any of them (`raise_keyboard_interrupt`); a
+loop that can save where it is holds the first one until its current step is done (`HeldInterrupts`), so a rerun
+loses no finished work; a rollback or a commit is never cut short (`signals_deferred`)."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import threading
 
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
+SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def raise_keyboard_interrupt(signum, frame) -> None:
-    """The commands' SIGTERM handler: stop as Ctrl-C does."""
+    """The commands' SIGTERM and SIGHUP handler: stop as Ctrl-C does (rolling back what is under way)."""
     raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """Ctrl-C, SIGTERM and SIGHUP arriving inside the block take effect when it ends, whatever their handler was
+    (Python's Ctrl-C, the default termination, a caller's own): a rollback or a commit is never left half done,
+    however often Ctrl-C is pressed. Blocking the signals would not do: only the calling thread's mask changes, and
+    a signal delivered to any other thread still interrupts this one (Python runs its handlers here). An ignored
+    signal stays ignored; outside the main thread (where no handler runs) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    arrived: list[int] = []
+    previous = {}
+    for sig in SIGNALS:
+        handler = signal.getsignal(sig)
+        if handler not in (signal.SIG_IGN, None):
+            previous[sig] = handler
+            signal.signal(sig, lambda signum, frame: arrived.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for signum in dict.fromkeys(arrived):  # each signal once, in the order they came
+            handler = previous[signum]
+            if handler is signal.SIG_DFL:
+                os.kill(os.getpid(), signum)
+            else:
+                handler(signum, None)
 
 
 class HeldInterrupts:

@@ -26,8 +26,6 @@ import json
 import logging
 import os
 import shutil
-import signal
-import threading
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -43,7 +41,9 @@ from adademo_lerobot.core.files import (
     atomic_write_json,
     atomic_write_text,
     check_writable_location,
+    exclusive_use,
 )
+from adademo_lerobot.core.interrupts import signals_deferred
 from adademo_lerobot.core.patching import temporarily_set
 from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.info import read_info
@@ -87,6 +87,15 @@ log = logging.getLogger(__name__)
 
 def _all_files(root: Path) -> list[str]:
     return sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file())
+
+
+def recover_unless_in_use(root: Path, command: str) -> None:
+    """`recover_interrupted_write` for a command that does not hold the dataset itself (training reads it; record
+    and run check it first): refused in one line while another command holds it, whose write under way is not a
+    killed one to roll back."""
+    if (Path(root) / TXN_FILE).exists():
+        with exclusive_use(root, command):
+            recover_interrupted_write(root)
 
 
 def recover_interrupted_write(root: Path, failed_here: bool = False) -> int:
@@ -173,20 +182,6 @@ def _remove_empty_folders(folder: Path) -> None:
             path.rmdir()
     if not any(folder.iterdir()):
         folder.rmdir()
-
-
-@contextlib.contextmanager
-def _signals_deferred():
-    """Ctrl-C (and SIGTERM) wait until a rollback has finished: a second Ctrl-C must not leave it half done. Only
-    the main thread receives signals, so elsewhere there is nothing to defer."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def _abandon(dataset) -> None:
@@ -434,7 +429,7 @@ class DemoDataset:
                 _begin_write(self.root, rewrites, creates)  # if this fails, it has changed nothing
                 yield
             except BaseException as err:
-                with _signals_deferred():
+                with signals_deferred():
                     recover_interrupted_write(self.root, failed_here=True)
                 if isinstance(err, Exception) and not isinstance(err, AdaDemoError):
                     raise write_failure(err, self.root, what) from err
@@ -496,7 +491,7 @@ class DemoDataset:
                     )
             indices = self._write_episodes(dataset, demos, round_index, source, collector, producer)
         except BaseException as err:
-            with _signals_deferred():
+            with signals_deferred():
                 if dataset is not None:
                     _abandon(dataset)
                 if creating:
@@ -506,12 +501,13 @@ class DemoDataset:
             if isinstance(err, Exception) and not isinstance(err, AdaDemoError):
                 raise write_failure(err, self.root, what) from err
             raise
-        if creating:
-            if self.root.exists():
-                self.root.rmdir()  # an empty folder (anything else was refused by check_new_root)
-            os.replace(write_root, self.root)
-        else:
-            _commit_write(self.root)
+        with signals_deferred():  # between the rmdir and the rename, Ctrl-C would leave no dataset at all
+            if creating:
+                if self.root.exists():
+                    self.root.rmdir()  # an empty folder (anything else was refused by check_new_root)
+                os.replace(write_root, self.root)
+            else:
+                _commit_write(self.root)
         _remove_empty_folders(self.root / "images")
         return indices
 

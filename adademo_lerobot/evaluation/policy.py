@@ -145,8 +145,13 @@ def write_readout_policy(path: str | Path, readout: dict, folder: Path) -> Path:
     stored = json.loads((path / "config.json").read_text())
     (tmp / "config.json").write_text(json.dumps(stored | readout, indent=4))
     (tmp / READOUT_RECORD).write_text(json.dumps({"from": str(path.resolve()), "readout": readout}, indent=2))
-    shutil.rmtree(folder, ignore_errors=True)  # ours from an earlier evaluation (check_readout)
+    # An earlier evaluation's (check_readout) is set aside whole first: a kill never leaves half of one.
+    aside = folder.with_name(folder.name + ".replaced")
+    shutil.rmtree(aside, ignore_errors=True)
+    if folder.exists():
+        folder.rename(aside)
     tmp.rename(folder)
+    shutil.rmtree(aside, ignore_errors=True)
     return folder
 
 

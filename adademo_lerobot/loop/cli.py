@@ -281,7 +281,12 @@ def _close_progress_bars() -> None:
         bar.close()
 
 
-def run_command(target: str | Callable, config_cls: type, lerobot_config: str | None = None) -> None:
+def run_command(
+    target: str | Callable,
+    config_cls: type,
+    lerobot_config: str | None = None,
+    resume: str = "rerun the same command to resume",
+) -> None:
     """Parse `config_cls` from the command line, then import and call `target` ("module:function") with it.
 
     `--help`, flag errors and `config.validate()` answer from a first parse that imports no LeRobot config;
@@ -289,13 +294,15 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
     `config_cls` holds our own flags), the config is then parsed in full. Bad input exits 2 with one `error:`
     line; a failure of the machine (a full disk, an I/O error, a lost Ray cluster) or of the installation (an
     import that fails mid-run) exits 1 with one `error:` line that says the same command resumes; Ctrl-C (or
-    SIGTERM) exits 130 saying how to resume."""
+    SIGTERM, or a closed terminal's SIGHUP) exits 130 saying how to resume (`resume`)."""
     import draccus
 
     configure_logging()
     argv = sys.argv[1:]
     if threading.current_thread() is threading.main_thread():  # SIGTERM stops a command as Ctrl-C does
         signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
+        if signal.getsignal(signal.SIGHUP) is signal.SIG_DFL:  # a closed terminal too (not under nohup)
+            signal.signal(signal.SIGHUP, raise_keyboard_interrupt)
     try:
         try:
             check_moved_flags(config_cls, argv)
@@ -341,5 +348,5 @@ def run_command(target: str | Callable, config_cls: type, lerobot_config: str | 
         print(f"error: {cause}: {first}run the same command to resume", file=sys.stderr)
         sys.exit(1)
     except KeyboardInterrupt:
-        print("interrupted: rerun the same command to resume", file=sys.stderr)
+        print(f"interrupted: {resume}", file=sys.stderr)
         sys.exit(130)

@@ -31,7 +31,7 @@ from adademo_lerobot.dataset.layout import (
     SUITE_FILE,
     TXN_FILE,
 )
-from adademo_lerobot.dataset.ledger import RoundJournal, read_ledger
+from adademo_lerobot.dataset.ledger import RoundJournal, ledger_rounds, read_ledger
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.loop.configs import PushConfig
 from adademo_lerobot.strategies import StrategyConfig
@@ -106,7 +106,8 @@ def validate(cfg: PushConfig) -> Path:
             f"{root} has an unfinished write ({TXN_FILE}); rerun the command that was interrupted "
             "(it rolls the write back or completes it) before pushing"
         )
-    unfinished = RoundJournal.in_progress(root)
+    # A journal of a round already in the ledger (a kill just before it was archived) is of a finished round.
+    unfinished = [r for r in RoundJournal.in_progress(root) if r not in ledger_rounds(root)]
     if unfinished:
         raise AdaDemoError(
             f"round {unfinished[0]} of {root} is unfinished (meta/adademo/journal-round-{unfinished[0]:03d}.jsonl); "

@@ -50,6 +50,7 @@ from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.interventions import check_writable_features
 from adademo_lerobot.dataset.ledger import append_ledger
 from adademo_lerobot.dataset.metadata import read_episode_metadata
+from adademo_lerobot.dataset.store import recover_unless_in_use
 from adademo_lerobot.loop.configs import RecordConfig
 from adademo_lerobot.loop.expand import check_ledger_matches_dataset, next_round
 from adademo_lerobot.loop.person import StopRecording, make_person
@@ -173,6 +174,8 @@ def dataset_tasks(root: Path) -> list[str]:
 def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
     cfg.validate()
     root = Path(cfg.dataset.root)
+    # A write a kill left half-done is rolled back before the dataset is judged damaged.
+    recover_unless_in_use(root, "adademo-record")
     check_dataset_integrity(root)
     from lerobot.robots.utils import make_robot_from_config
     from lerobot.teleoperators.utils import make_teleoperator_from_config

@@ -48,7 +48,7 @@ from adademo_lerobot.loop.configs import (
     default_suite,
 )
 from adademo_lerobot.loop.evaluate import evaluate_fixed_set
-from adademo_lerobot.loop.expand import next_round, run_expand
+from adademo_lerobot.loop.expand import finish_stale_journals, next_round, run_expand
 from adademo_lerobot.loop.run_state import RunData, RunState, saved_stage
 from adademo_lerobot.loop.start import (
     Start,
@@ -356,6 +356,7 @@ def expand_round(
     handed to `run_expand`."""
     r = data.base_round + i
     if r in ledger_rounds(data.root):  # killed after the round finished, before the run marked it done
+        finish_stale_journals(data.root)  # and maybe before its journal was archived
         eps = read_episode_metadata(data.root)
         return {"demos_added": eps[eps["adademo/round"] == r].groupby("task").size().astype(int).to_dict()}
     expand_cfg = cfg.expand_config(data.root, data.repo_id, checkpoint)

@@ -35,6 +35,7 @@ from adademo_lerobot.dataset.metadata import (
     rebuild_suite_config,
     try_load_suite_config,
 )
+from adademo_lerobot.dataset.store import recover_unless_in_use
 from adademo_lerobot.loop.push import is_hub_repo_id
 from adademo_lerobot.suites import SuiteConfig, make_suite
 
@@ -247,6 +248,8 @@ def check_start(
             "local folder is used as it is: drop one"
         )
     root, dataset_commit = locate_dataset(dataset)
+    # A write a kill left half-done is rolled back before the dataset is judged damaged.
+    recover_unless_in_use(root, "adademo-run")
     check_dataset_integrity(root)
     check_episode_stats(root)  # the run appends to it (or its copy): refused before anything is copied
     suite_config = choose_suite(root, requested_suite, requested_is_default)

@@ -36,7 +36,7 @@ from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
 from adademo_lerobot.dataset.layout import COL_SOURCE, POLICY_SOURCE
 from adademo_lerobot.dataset.metadata import read_episode_metadata, try_load_suite_config
-from adademo_lerobot.dataset.store import recover_interrupted_write
+from adademo_lerobot.dataset.store import recover_unless_in_use
 from adademo_lerobot.dataset.video import video_backend
 from adademo_lerobot.evaluation.policy import (
     POLICY_TYPES,
@@ -134,7 +134,8 @@ class AdaDemoTrainConfig(TrainCommandFlags, TrainPipelineConfig):
             last = find_last_checkpoint(self.output_dir)
             if last is None:
                 raise AdaDemoError(
-                    f"--resume=true but {self.output_dir} has no complete checkpoint to resume from"
+                    f"--resume=true but {self.output_dir} has no complete checkpoint to resume from (stopped "
+                    "before its first one: drop --resume=true, with another --output_dir or this one removed)"
                 )
             self.checkpoint_path = last
             saved = json.loads((last / "training_state" / "training_step.json").read_text())
@@ -282,7 +283,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     root = Path(cfg.dataset.root)
     if not (root / "meta" / "info.json").exists():
         raise AdaDemoError(f"no LeRobot dataset at {root}")
-    recover_interrupted_write(root)
+    recover_unless_in_use(root, "adademo-train")
     episodes = read_episode_metadata(root)
     scheme = make_sampling_scheme(
         cfg.sampler, cfg.min_task_weight, episodes["task"].nunique(), cfg.sampler_alpha

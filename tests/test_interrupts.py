@@ -1,0 +1,52 @@
+"""Ctrl-C, SIGTERM and SIGHUP inside a block that must not be cut short (a rollback, a commit): they take effect
+when it ends, however often they come and whichever thread the kernel hands them to; the handler that was set
+runs then (Python's Ctrl-C, the commands' SIGTERM, the default termination). In a fresh interpreter each, as a
+command would meet them."""
+
+import subprocess
+import sys
+
+import pytest
+
+SCRIPT = """
+import os, signal, sys, threading, time
+from adademo_lerobot.core.interrupts import raise_keyboard_interrupt, signals_deferred
+
+sig = getattr(signal, sys.argv[1])
+if sys.argv[2] == "command":  # as run_command sets SIGTERM and SIGHUP
+    signal.signal(sig, raise_keyboard_interrupt)
+busy = threading.Event()
+threading.Thread(target=busy.wait, daemon=True).start()  # a second thread the kernel may deliver to
+finished = False
+try:
+    with signals_deferred():
+        for _ in range(3):  # pressed three times, from another thread
+            sender = threading.Thread(target=os.kill, args=(os.getpid(), sig))
+            sender.start()
+            sender.join()
+            time.sleep(0.05)
+        finished = True
+        print("block done", flush=True)
+    print("after the block", flush=True)
+except KeyboardInterrupt:
+    print(f"interrupted after the block: {finished}", flush=True)
+    sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize(
+    "sig, handler, out, code",
+    [
+        ("SIGINT", "python", "block done\ninterrupted after the block: True", 130),
+        ("SIGTERM", "command", "block done\ninterrupted after the block: True", 130),
+        ("SIGHUP", "command", "block done\ninterrupted after the block: True", 130),
+        ("SIGTERM", "default", "block done", -15),  # terminated at the block's end, not inside it
+    ],
+)
+def test_signals_inside_a_deferred_block_take_effect_at_its_end(sig, handler, out, code):
+    proc = subprocess.run(
+        [sys.executable, "-c", SCRIPT, sig, handler], capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == code, proc.stderr[-2000:]
+    assert proc.stdout.strip() == out
+    assert "Traceback" not in proc.stderr
