@@ -15,6 +15,7 @@ import pytest
 from conftest import BIN, file_digests, run_cli
 from hub_double import HubDouble
 
+from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.loop.push import adademo_card_section
 
 TOKEN = f"hf_adademoTest{secrets.token_hex(12)}"
@@ -182,6 +183,30 @@ def test_bad_repo_id_and_rejected_token(hub, expanded, tmp_path):
     )
     assert_push_error(proc, "refused")
     assert ("dataset", "alice/wrong-token") not in hub.repos
+
+
+def test_a_dataset_being_written_is_not_pushed_and_a_finished_rounds_journal_does_not_block(
+    hub, expanded, tmp_path
+):
+    from adademo_lerobot.core.files import exclusive_use
+    from adademo_lerobot.dataset.layout import ADADEMO_DIR
+    from adademo_lerobot.loop.configs import PushConfig
+    from adademo_lerobot.loop.push import validate
+
+    with exclusive_use(expanded, "adademo-expand"):  # another command writes it now
+        proc = push(hub, tmp_path, f"--dataset.root={expanded}", "--repo_id=alice/busy")
+    assert_push_error(proc, "in use by another running adademo command")
+    assert ("dataset", "alice/busy") not in hub.repos
+    # Killed between round 1's ledger entry and the archiving of its journal: round 1 is finished.
+    root = tmp_path / "ds"
+    shutil.copytree(expanded, root)
+    (root / ADADEMO_DIR / "journal-round-001.jsonl").write_text('{"type": "start"}\n')
+    cfg = PushConfig(repo_id="alice/ds")
+    cfg.dataset.root = str(root)
+    assert validate(cfg) == root
+    (root / ADADEMO_DIR / "journal-round-002.jsonl").write_text('{"type": "start"}\n')  # not in the ledger
+    with pytest.raises(AdaDemoError, match="round 2 of .* is unfinished"):
+        validate(cfg)
 
 
 def test_card_for_many_tasks_has_one_row_per_round_and_task(expanded):

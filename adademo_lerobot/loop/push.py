@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.files import exclusive_use
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.layout import (
     ADADEMO_DIR,
@@ -353,7 +354,13 @@ def _hub_error(err: Exception, repo_id: str) -> AdaDemoError:
 
 
 def run_push(cfg: PushConfig) -> str:
-    root = validate(cfg)
+    # No command may write the dataset while it is checked, read and uploaded.
+    root = cfg.dataset.root
+    with exclusive_use(Path(root), "adademo-push") if root else contextlib.nullcontext():
+        return push_dataset(cfg, validate(cfg))
+
+
+def push_dataset(cfg: PushConfig, root: Path) -> str:
     token = resolve_token()
     suite = load_suite_config(root)
     section = adademo_card_section(root)
