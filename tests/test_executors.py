@@ -231,6 +231,56 @@ def test_a_tasks_units_go_to_the_worker_that_ran_it_last(ray_address, ckpt):
     assert result["sigterm_kept"], result  # SIGTERM still stops a command as Ctrl-C does, after ray.init
 
 
+STOP_WAITING = """
+import json, sys, threading, time
+from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig
+from adademo_lerobot.core.errors import RoundAbortedError
+from adademo_lerobot.executors import RayArgs
+from adademo_lerobot.executors.ray_executor import RayExecutor
+from adademo_lerobot.suites import make_suite
+from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
+
+address, ckpt = sys.argv[1:]
+suite = make_suite(MetaWorldSuiteConfig(tasks="reach-v3,push-v3", max_episode_steps=500))
+executor = RayExecutor(RayArgs(address=address, num_workers=1), suite, ScriptedCollectorConfig(), 2, "cpu")
+executor.use_policy(ckpt)
+pending = executor.evaluate("push-v3", list(range(60)))  # one long unit: 60 episodes of up to 500 steps
+seen = {}
+def wait():
+    try:
+        pending.result()
+        seen["ended"] = "with the result"
+    except RoundAbortedError:
+        seen["ended"] = "given up"
+    seen["at"] = time.perf_counter()
+waiter = threading.Thread(target=wait)
+waiter.start()
+time.sleep(2)
+running = not pending.ready()
+stopped_at = time.perf_counter()
+executor.stop_waiting()
+waiter.join(timeout=60)
+print(json.dumps({"running": running, "ended": seen.get("ended"), "after": seen["at"] - stopped_at}))
+executor.close()
+"""
+
+
+def test_a_round_that_stops_gives_up_the_units_it_waits_for_at_once(ray_address, ckpt):
+    """Ctrl-C (or a failed task) during a Ray round: a task's loop waiting for a long unit ends within a second,
+    not when the unit is done (an evaluation batch or a planner's demonstrations can take minutes)."""
+    out = subprocess.run(
+        [str(BIN / "python"), "-c", STOP_WAITING, ray_address, str(ckpt)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"},
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    result = json.loads(next(line for line in out.stdout.splitlines() if line.startswith('{"running"')))
+    assert result["running"], result  # the unit was still running when the round stopped
+    assert result["ended"] == "given up" and result["after"] < 3, result
+
+
 @pytest.mark.slow
 def test_ray_gives_the_same_fresh_state_rounds_as_local(reach_push_dataset, ckpt, ray_address, tmp_path):
     """Uniform (fresh states, no policy) then task_only, two rounds each way."""

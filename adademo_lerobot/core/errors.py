@@ -10,6 +10,11 @@ class AdaDemoError(Exception):
     """A problem with the user's input or files, stated with what to do about it."""
 
 
+class RoundAbortedError(Exception):
+    """Raised in a task's loop when the round stops (another task's loop failed, or Ctrl-C): that loop ends at its
+    next step, or at once when it is waiting for workers (`Executor.stop_waiting`), never inside a commit."""
+
+
 class MachineError(AdaDemoError):
     """The machine failed under the command; the message says what failed, where, and that a rerun resumes."""
 

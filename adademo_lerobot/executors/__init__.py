@@ -121,6 +121,9 @@ class Executor(Protocol):
     ) -> list[Pending]: ...
     # Writes a planned merge's files (`dataset/shard_merge.py`) where the executor's workers are.
     def prepare_merge(self, plan: MergePlan) -> Pending: ...
+    # The round stops: results still awaited raise RoundAbortedError instead (their units are given up; the
+    # executor is then only closed).
+    def stop_waiting(self) -> None: ...
     def close(self) -> None: ...
 
 
@@ -172,6 +175,9 @@ class LocalExecutor:
 
     def prepare_merge(self, plan: MergePlan) -> Lazy:
         return Lazy(lambda: self.worker.prepare_merge(plan))
+
+    def stop_waiting(self) -> None:
+        pass  # units run in the caller's thread, which the round stops itself
 
     def close(self) -> None:
         self.worker.close()

@@ -23,7 +23,13 @@ from collections import deque
 
 from adademo_lerobot.collectors import CollectorConfig
 from adademo_lerobot.collectors.takeover import TakeoverArgs
-from adademo_lerobot.core.errors import AdaDemoError, LostRayClusterError, MachineError, machine_cause
+from adademo_lerobot.core.errors import (
+    AdaDemoError,
+    LostRayClusterError,
+    MachineError,
+    RoundAbortedError,
+    machine_cause,
+)
 from adademo_lerobot.executors import RayArgs
 from adademo_lerobot.executors.worker import EpisodeWorker
 from adademo_lerobot.suites import TaskSuite
@@ -73,6 +79,7 @@ class ClusterWatch:
         # The most actors the cluster had room for: less room than that (and than needed) means a lost node.
         self._most_room = self._room() or 0
         self.lost: str | None = None  # what was seen, once the cluster is taken for lost
+        self.stopped = threading.Event()  # the round stopped: results still awaited are given up
 
     def error(self) -> LostRayClusterError:
         return LostRayClusterError(
@@ -89,6 +96,8 @@ class ClusterWatch:
             self.check()
             if self.lost is not None:
                 raise self.error()
+            if self.stopped.is_set():
+                raise RoundAbortedError
             if waiting:
                 _, waiting = ray.wait(waiting, num_returns=len(waiting), timeout=WAIT_SLICE_S)
             if not waiting:
@@ -367,6 +376,9 @@ class RayExecutor:
 
     def worker_pids(self) -> list[int]:
         return self._watch.get([a.pid.remote() for a in self.actors])
+
+    def stop_waiting(self) -> None:
+        self._watch.stopped.set()
 
     def close(self) -> None:
         import ray

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.episodes import EpisodeRecord, TaskRoundRecord
-from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError, RoundAbortedError
 from adademo_lerobot.core.seeds import fresh_state_seed
 from adademo_lerobot.dataset.ledger import RoundJournal
 from adademo_lerobot.dataset.metadata import has_dataset
@@ -54,10 +54,6 @@ class Outcome:
 
     seed: int
     success: bool
-
-
-class RoundAbortedError(Exception):
-    """Raised in a task's loop when another task's loop failed: the round stops and that failure is reported."""
 
 
 @dataclass
@@ -298,6 +294,7 @@ class RoundContext(JournaledRound):
             finally:  # a failed task (or Ctrl-C here) stops the others at their next step, never inside a commit
                 if not all(f.done() and f.exception() is None for f in futures):
                     self._aborted.set()
+                    self.executor.stop_waiting()  # a loop waiting for a long unit of the workers ends too
                     pool.shutdown(wait=True, cancel_futures=True)
             failed = [f.exception() for f in futures if not f.cancelled() and f.exception() is not None]
             first = next((e for e in failed if not isinstance(e, RoundAbortedError)), None)
