@@ -167,6 +167,20 @@ def test_units_asked_together_go_out_a_few_per_call_the_same_share_for_every_wor
         assert len(sizes) % workers == 0 or len(sizes) == units
 
 
+def run_driver_script(script: str, ray_address: str, ckpt: Path) -> dict:
+    """`script` run as a Ray driver process of its own (as a command is), given the cluster and checkpoint: the
+    last JSON object it prints."""
+    out = subprocess.run(
+        [str(BIN / "python"), "-c", script, ray_address, str(ckpt)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"},
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(next(line for line in reversed(out.stdout.splitlines()) if line.startswith("{")))
+
+
 PLACEMENT = """
 import json, sys
 from adademo_lerobot.collectors.scripted import ScriptedCollectorConfig
@@ -211,15 +225,7 @@ def test_a_tasks_units_go_to_the_worker_that_ran_it_last(ray_address, ckpt):
     (whose envs for it are still built), and a task no worker has run goes to the one idle longest (by load
     alone, every unit went to worker 0, which built new envs for each). Units submitted together spread over
     the workers, a few per call, and finished ones stop counting."""
-    out = subprocess.run(
-        [str(BIN / "python"), "-c", PLACEMENT, ray_address, str(ckpt)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"},
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    result = json.loads(next(line for line in out.stdout.splitlines() if line.startswith('{"placed"')))
+    result = run_driver_script(PLACEMENT, ray_address, ckpt)
     placed = result["placed"]
     workers = {task: {i for t, i in placed if t == task} for task in ("reach-v3", "push-v3")}
     assert all(len(w) == 1 for w in workers.values()), placed
@@ -268,15 +274,7 @@ executor.close()
 def test_a_round_that_stops_gives_up_the_units_it_waits_for_at_once(ray_address, ckpt):
     """Ctrl-C (or a failed task) during a Ray round: a task's loop waiting for a long unit ends within a second,
     not when the unit is done (an evaluation batch or a planner's demonstrations can take minutes)."""
-    out = subprocess.run(
-        [str(BIN / "python"), "-c", STOP_WAITING, ray_address, str(ckpt)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"},
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    result = json.loads(next(line for line in out.stdout.splitlines() if line.startswith('{"running"')))
+    result = run_driver_script(STOP_WAITING, ray_address, ckpt)
     assert result["running"], result  # the unit was still running when the round stopped
     assert result["ended"] == "given up" and result["after"] < 3, result
 
