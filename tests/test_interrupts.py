@@ -15,6 +15,7 @@ from adademo_lerobot.core.interrupts import raise_keyboard_interrupt, signals_de
 sig = getattr(signal, sys.argv[1])
 if sys.argv[2] == "command":  # as run_command sets SIGTERM and SIGHUP
     signal.signal(sig, raise_keyboard_interrupt)
+handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
 busy = threading.Event()
 threading.Thread(target=busy.wait, daemon=True).start()  # a second thread the kernel may deliver to
 finished = False
@@ -29,7 +30,8 @@ try:
         print("block done", flush=True)
     print("after the block", flush=True)
 except KeyboardInterrupt:
-    print(f"interrupted after the block: {finished}", flush=True)
+    restored = all(signal.getsignal(s) is h for s, h in handlers.items())
+    print(f"interrupted after the block: {finished}, handlers restored: {restored}", flush=True)
     sys.exit(130)
 """
 
@@ -37,9 +39,9 @@ except KeyboardInterrupt:
 @pytest.mark.parametrize(
     "sig, handler, out, code",
     [
-        ("SIGINT", "python", "block done\ninterrupted after the block: True", 130),
-        ("SIGTERM", "command", "block done\ninterrupted after the block: True", 130),
-        ("SIGHUP", "command", "block done\ninterrupted after the block: True", 130),
+        ("SIGINT", "python", "block done\ninterrupted after the block: True, handlers restored: True", 130),
+        ("SIGTERM", "command", "block done\ninterrupted after the block: True, handlers restored: True", 130),
+        ("SIGHUP", "command", "block done\ninterrupted after the block: True, handlers restored: True", 130),
         ("SIGTERM", "default", "block done", -15),  # terminated at the block's end, not inside it
     ],
 )

@@ -161,7 +161,7 @@ def test_ctrl_c_saves_the_step_it_stopped_at_and_the_resumed_training_equals_an_
 ):
     """A Ctrl-C between checkpoints finishes the step, saves it and exits 130; resumed from there, the training
     ends with an uninterrupted one's weights and checkpoints (the interrupt's checkpoint is removed at the next).
-    Batches come from a loader worker, which the terminal's Ctrl-C reaches too."""
+    Batches come from a loader worker, and the Ctrl-C goes to the whole process group, as a terminal's does."""
     from safetensors.torch import load_file
 
     from adademo_lerobot.loop.train import find_last_checkpoint, saved_on_interrupt

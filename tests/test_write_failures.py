@@ -279,6 +279,9 @@ def test_a_killed_write_is_rolled_back_by_the_next_command_but_not_one_under_way
     with exclusive_use(root, "adademo-expand"):  # the writer is alive
         with pytest.raises(AdaDemoError, match="in use by another running adademo command"):
             recover_unless_in_use(root, "adademo-train")
+        train = [f"--dataset.root={root}", "--dataset.repo_id=local/demo", *TINY_ACT, "--steps=1"]
+        proc = run_cli("adademo-train", *train, f"--output_dir={tmp_path / 'train'}", check=False)
+        assert proc.returncode == 2 and "then rerun adademo-train" in proc.stderr.strip().splitlines()[-1]
         assert stray.exists() and (root / TXN_FILE).exists()
     recover_unless_in_use(root, "adademo-train")  # the writer was killed
     assert dataset_files(root) == before and not (root / TXN_FILE).exists()

@@ -28,23 +28,41 @@ def signals_deferred():
         yield
         return
     arrived: list[int] = []
+    raised: list[
+        BaseException
+    ] = []  # by a handler that ran while handlers were swapped: raised after the block
     previous = {}
-    for sig in SIGNALS:
-        handler = signal.getsignal(sig)
-        if handler not in (signal.SIG_IGN, None):
-            previous[sig] = handler
-            signal.signal(sig, lambda signum, frame: arrived.append(signum))
     try:
+        for sig in SIGNALS:
+            handler = signal.getsignal(sig)
+            if handler not in (signal.SIG_IGN, None):
+                previous[sig] = handler
+                raised += _set_handler(sig, lambda signum, frame: arrived.append(signum))
         yield
     finally:
         for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        for signum in dict.fromkeys(arrived):  # each signal once, in the order they came
-            handler = previous[signum]
-            if handler is signal.SIG_DFL:
+            raised += _set_handler(sig, handler)
+        # A default termination first (it ends the process); then each other signal once, in the order they came.
+        for signum in sorted(dict.fromkeys(arrived), key=lambda s: previous[s] is not signal.SIG_DFL):
+            if previous[signum] is signal.SIG_DFL:
                 os.kill(os.getpid(), signum)
-            else:
-                handler(signum, None)
+            elif not raised:
+                previous[signum](signum, None)
+        if raised:
+            raise raised[0]
+
+
+def _set_handler(sig: int, handler) -> list[BaseException]:
+    """`signal.signal(sig, handler)`, done whatever happens: CPython first runs the handlers of signals that are
+    pending, and one may raise (a Ctrl-C just restored); that error is returned, for the caller to raise once every
+    handler is back."""
+    raised = []
+    while True:
+        try:
+            signal.signal(sig, handler)
+            return raised
+        except BaseException as err:  # noqa: BLE001  (KeyboardInterrupt: raised by the caller afterwards)
+            raised.append(err)
 
 
 class HeldInterrupts:
@@ -80,8 +98,8 @@ class HeldInterrupts:
 
 
 def ignore_interrupts(*_) -> None:
-    """A DataLoader worker's `worker_init_fn`: a terminal's Ctrl-C (or a SIGTERM to the process group) reaches the
-    loader's workers too, and a worker that quits on it leaves a held training waiting for a batch that never
-    comes; the main process ends the workers itself when it stops."""
-    for sig in SIGNALS:
+    """A DataLoader worker's `worker_init_fn`: a terminal's Ctrl-C (and SIGHUP) reaches the loader's workers too,
+    and a worker that quits on it leaves a held training waiting for a batch that never comes; the main process
+    ends the workers itself when it stops. SIGTERM stays: torch's last resort for a stuck worker."""
+    for sig in (signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)

@@ -13,6 +13,7 @@ then is LeRobot imported and the config parsed again with LeRobot's types in the
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import importlib
@@ -244,7 +245,6 @@ def check_moved_flags(config_cls: type, argv: list[str]) -> None:
 def one_line_usage_errors(parse: Callable, *args) -> Any:
     """`parse(*args)`, with argparse's usage error (an unknown flag, an invalid choice: usage text, then
     `prog: error: ...`, exit 2) turned into our one `error:` line. Help and anything else pass through."""
-    import contextlib
     import io
 
     captured = io.StringIO()
@@ -348,5 +348,6 @@ def run_command(
         print(f"error: {cause}: {first}run the same command to resume", file=sys.stderr)
         sys.exit(1)
     except KeyboardInterrupt:
-        print(f"interrupted: {resume}", file=sys.stderr)
+        with contextlib.suppress(OSError):  # after SIGHUP the terminal may be gone
+            print(f"interrupted: {resume}", file=sys.stderr)
         sys.exit(130)

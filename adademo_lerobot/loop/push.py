@@ -35,6 +35,7 @@ from adademo_lerobot.dataset.layout import (
 from adademo_lerobot.dataset.ledger import RoundJournal, ledger_rounds, read_ledger
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.loop.configs import PushConfig
+from adademo_lerobot.loop.expand import finish_stale_journals
 from adademo_lerobot.strategies import StrategyConfig
 
 log = logging.getLogger(__name__)
@@ -357,7 +358,9 @@ def run_push(cfg: PushConfig) -> str:
     # No command may write the dataset while it is checked, read and uploaded.
     root = cfg.dataset.root
     with exclusive_use(Path(root), "adademo-push") if root else contextlib.nullcontext():
-        return push_dataset(cfg, validate(cfg))
+        checked = validate(cfg)
+        finish_stale_journals(checked)  # a finished round's journal goes up archived, as expand leaves it
+        return push_dataset(cfg, checked)
 
 
 def push_dataset(cfg: PushConfig, root: Path) -> str:
