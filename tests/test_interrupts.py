@@ -15,6 +15,8 @@ from adademo_lerobot.core.interrupts import raise_keyboard_interrupt, signals_de
 sig = getattr(signal, sys.argv[1])
 if sys.argv[2] == "command":  # as run_command sets SIGTERM and SIGHUP
     signal.signal(sig, raise_keyboard_interrupt)
+elif sys.argv[2] == "python":  # Ctrl-C as in a terminal, even when the suite runs in the background (SIG_IGN)
+    signal.signal(sig, signal.default_int_handler)
 handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
 busy = threading.Event()
 threading.Thread(target=busy.wait, daemon=True).start()  # a second thread the kernel may deliver to

@@ -16,7 +16,7 @@ from conftest import BIN, file_digests, run_cli
 from hub_double import HubDouble
 
 from adademo_lerobot.core.errors import AdaDemoError
-from adademo_lerobot.loop.push import adademo_card_section
+from adademo_lerobot.loop.dataset_card import adademo_card_section
 
 TOKEN = f"hf_adademoTest{secrets.token_hex(12)}"
 

@@ -89,7 +89,8 @@ class StrategyConfig(draccus.ChoiceRegistry, abc.ABC):
     """Which expansion strategy adds a round's demonstrations, with its own settings (`--strategy.type=NAME
     --strategy.FIELD=...`). Each registers itself and builds its rounds' strategies."""
 
-    description: ClassVar[str]  # one line, for the dataset card (`adademo-push`: `hub.source_description`)
+    # One line, for the dataset card (`adademo-push`: `loop/dataset_card.source_description`).
+    description: ClassVar[str]
     needs_policy: ClassVar[bool]  # it evaluates the policy
     collects_at_failed_states: ClassVar[bool]  # its demonstrations answer failed evaluations (principle B)
 
