@@ -28,9 +28,8 @@ def signals_deferred():
         yield
         return
     arrived: list[int] = []
-    raised: list[
-        BaseException
-    ] = []  # by a handler that ran while handlers were swapped: raised after the block
+    # By a handler that ran while the handlers were being swapped: raised after the block.
+    raised: list[BaseException] = []
     previous = {}
     try:
         for sig in SIGNALS:
@@ -92,9 +91,11 @@ class HeldInterrupts:
         return self
 
     def __exit__(self, *exc) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
+        # Every handler back even if a pending second signal raises on the way (`_set_handler`), then that error.
+        raised = [err for sig, handler in self._previous.items() for err in _set_handler(sig, handler)]
         self._previous.clear()
+        if raised:
+            raise raised[0]
 
 
 def ignore_interrupts(*_) -> None:

@@ -21,11 +21,10 @@ from pathlib import Path
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import exclusive_use
 from adademo_lerobot.dataset.layout import TXN_FILE
-from adademo_lerobot.dataset.ledger import RoundJournal, ledger_rounds
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
 from adademo_lerobot.loop.configs import PushConfig
 from adademo_lerobot.loop.dataset_card import adademo_card_section, summarize_rounds
-from adademo_lerobot.loop.expand import finish_stale_journals
+from adademo_lerobot.loop.expand import finish_stale_journals, unfinished_rounds
 
 log = logging.getLogger(__name__)
 
@@ -63,8 +62,7 @@ def validate(cfg: PushConfig) -> Path:
             f"{root} has an unfinished write ({TXN_FILE}); rerun the command that was interrupted "
             "(it rolls the write back or completes it) before pushing"
         )
-    # A journal of a round already in the ledger (a kill just before it was archived) is of a finished round.
-    unfinished = [r for r in RoundJournal.in_progress(root) if r not in ledger_rounds(root)]
+    unfinished = unfinished_rounds(root)
     if unfinished:
         raise AdaDemoError(
             f"round {unfinished[0]} of {root} is unfinished (meta/adademo/journal-round-{unfinished[0]:03d}.jsonl); "
