@@ -158,8 +158,8 @@ def test_disk_full_while_creating_a_dataset_leaves_nothing_half_made(small_disk)
 def test_ctrl_c_during_a_commit_rolls_back_and_the_rerun_finishes_exactly(
     reach_push_dataset, tmp_path, reference_round
 ):
-    """SIGINT while a commit writes (its transaction file exists): the command rolls it back before it exits 130;
-    the dataset then holds exactly the files it had before that commit."""
+    """SIGINT while a commit writes (its transaction file exists), and again as it stops: the command rolls it back
+    before it exits 130, with one line; the dataset then holds exactly the files it had before that commit."""
     args = [*UNIFORM, "--commit_every=1"]
     landed = 0
     for attempt in range(4):  # the signal may arrive just after a (fast) commit ended: then try again
@@ -182,6 +182,11 @@ def test_ctrl_c_during_a_commit_rolls_back_and_the_rerun_finishes_exactly(
                 time.sleep(0.002)
         assert listed is not None, "no commit began"
         proc.send_signal(signal.SIGINT)
+        time.sleep(0.005)
+        if (
+            proc.poll() is None
+        ):  # Ctrl-C again while it rolls back and leaves: no traceback, the rollback whole
+            proc.send_signal(signal.SIGINT)
         _, stderr = proc.communicate(timeout=120)
         if proc.returncode == 0:  # the last commit ended, and the command with it, before the signal was sent
             continue

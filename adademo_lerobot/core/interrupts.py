@@ -12,9 +12,17 @@ import threading
 SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
+_stopping = threading.Event()  # a command's first interrupt was raised (`raise_keyboard_interrupt`)
+
+
 def raise_keyboard_interrupt(signum, frame) -> None:
-    """The commands' SIGTERM and SIGHUP handler: stop as Ctrl-C does (rolling back what is under way)."""
-    raise KeyboardInterrupt
+    """The commands' handler of Ctrl-C, SIGTERM and SIGHUP: stop, once. From then on the command is stopping
+    (rolling back what is under way, saying how to resume, leaving); a further signal would only cut that short
+    at a random place (a traceback from a clean-up, a garbage-collection callback or the interpreter's shutdown),
+    so it is ignored. `kill -9` still ends a command at any moment (its journal and transaction file resume it)."""
+    if not _stopping.is_set():
+        _stopping.set()
+        raise KeyboardInterrupt
 
 
 @contextlib.contextmanager
@@ -67,7 +75,8 @@ def _set_handler(sig: int, handler) -> list[BaseException]:
 class HeldInterrupts:
     """Inside `with HeldInterrupts() as held:`, the first Ctrl-C or SIGTERM sets `held.requested` instead of
     raising KeyboardInterrupt, for the loop to save its state and stop at its next step; a second one raises at
-    once. Only signals that would have raised KeyboardInterrupt anyway are held (Python's Ctrl-C handler, the
+    once; `stop()` then raises what the first would have. Only signals that would have raised KeyboardInterrupt
+    anyway are held (Python's Ctrl-C handler, the
     commands' SIGTERM handler): an ignored signal, the default SIGTERM or a caller's own handler is left alone,
     and outside the main thread (or with `enabled=False`) nothing changes."""
 
@@ -75,11 +84,19 @@ class HeldInterrupts:
         self.requested = False
         self.enabled = enabled
         self._previous: dict[int, object] = {}
+        self._held: tuple[int, object] | None = None  # the signal held and the handler it would have run
 
     def _hold(self, signum, frame) -> None:
-        if self.requested:
-            raise KeyboardInterrupt
-        self.requested = True
+        if self.requested:  # a second one: what it would have done, at once
+            self._previous[signum](signum, frame)
+            return
+        self.requested, self._held = True, (signum, self._previous[signum])
+
+    def stop(self) -> None:
+        """What the held signal would have done (the loop has saved its state): KeyboardInterrupt."""
+        signum, handler = self._held
+        handler(signum, None)
+        raise KeyboardInterrupt  # the handler's, unless the command was already stopping
 
     def __enter__(self) -> HeldInterrupts:
         if self.enabled and threading.current_thread() is threading.main_thread():

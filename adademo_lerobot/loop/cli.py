@@ -299,10 +299,13 @@ def run_command(
 
     configure_logging()
     argv = sys.argv[1:]
-    if threading.current_thread() is threading.main_thread():  # SIGTERM stops a command as Ctrl-C does
+    # Ctrl-C, SIGTERM and a closed terminal's SIGHUP stop a command, once (`raise_keyboard_interrupt`); an ignored
+    # signal stays so (Ctrl-C of a job in the background, SIGHUP under nohup).
+    if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
-        if signal.getsignal(signal.SIGHUP) is signal.SIG_DFL:  # a closed terminal too (not under nohup)
-            signal.signal(signal.SIGHUP, raise_keyboard_interrupt)
+        for sig, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGHUP, signal.SIG_DFL)):
+            if signal.getsignal(sig) is default:
+                signal.signal(sig, raise_keyboard_interrupt)
     try:
         try:
             check_moved_flags(config_cls, argv)

@@ -578,7 +578,7 @@ def training_loop(
     # At the last step too (its checkpoint is written): the command stops, as asked.
     if held.requested:
         log.info("stopped at step %d and saved it (%s)", step, find_last_checkpoint(cfg.output_dir))
-        raise KeyboardInterrupt
+        held.stop()
     elapsed = time.perf_counter() - start
     log.info(
         "trained %d steps in %.1f s (%.1f steps/s); checkpoint: %s",
