@@ -172,3 +172,34 @@ def test_an_import_that_fails_mid_command_is_one_error_line_that_says_it_resumes
         "error: No module named 'adademo_lerobot.loop.no_such_module'"
     )
     assert "run the same command to resume" in lines[0]
+
+
+def test_a_command_after_a_stopped_one_in_the_same_process_still_stops(monkeypatch, capsys):
+    """A stopped command ignores further signals while it unwinds; the next command run in the same process (a
+    library caller, a notebook) is not stopping: its SIGTERM (or Ctrl-C) stops it too."""
+    import os
+    import signal
+    import time
+
+    from adademo_lerobot.loop.cli import run_command
+    from adademo_lerobot.loop.configs import ReportConfig
+
+    finished = []
+
+    def terminated_then_working(cfg):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(1)  # the handler raises here
+        finished.append(cfg)
+
+    monkeypatch.setattr("sys.argv", ["adademo-report"])
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        for _ in range(2):
+            with pytest.raises(SystemExit) as exit_info:
+                run_command(terminated_then_working, ReportConfig)
+            assert exit_info.value.code == 130
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    assert finished == []
+    assert capsys.readouterr().err.count("interrupted: rerun the same command to resume") == 2

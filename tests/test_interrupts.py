@@ -54,3 +54,19 @@ def test_signals_inside_a_deferred_block_take_effect_at_its_end(sig, handler, ou
     assert proc.returncode == code, proc.stderr[-2000:]
     assert proc.stdout.strip() == out
     assert "Traceback" not in proc.stderr
+
+
+def test_a_stopped_command_ignores_further_signals_until_the_next_command_starts():
+    """Stopping (a first signal, or a person's q/Esc in adademo-record) raises once; signals after it are ignored
+    while the command unwinds; the next command in the same process stops on its first signal again."""
+    from adademo_lerobot.core.interrupts import command_starts, raise_keyboard_interrupt, stop_command
+
+    command_starts()
+    with pytest.raises(KeyboardInterrupt):
+        stop_command()  # adademo-record's q/Esc
+    raise_keyboard_interrupt(15, None)  # ignored: the command is already stopping
+    command_starts()
+    with pytest.raises(KeyboardInterrupt):
+        raise_keyboard_interrupt(15, None)
+    raise_keyboard_interrupt(2, None)
+    command_starts()  # this test's process is no command: leave it not stopping

@@ -15,14 +15,25 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 _stopping = threading.Event()  # a command's first interrupt was raised (`raise_keyboard_interrupt`)
 
 
+def command_starts() -> None:
+    """A new command runs in this process (`run_command`): it is not stopping, whatever one before it did."""
+    _stopping.clear()
+
+
+def stop_command() -> None:
+    """Stop the command as its first Ctrl-C would (a person's request to stop, say): KeyboardInterrupt, and every
+    signal after it is ignored while the command rolls back and exits (`raise_keyboard_interrupt`)."""
+    _stopping.set()
+    raise KeyboardInterrupt
+
+
 def raise_keyboard_interrupt(signum, frame) -> None:
     """The commands' handler of Ctrl-C, SIGTERM and SIGHUP: stop, once. From then on the command is stopping
     (rolling back what is under way, saying how to resume, leaving); a further signal would only cut that short
     at a random place (a traceback from a clean-up, a garbage-collection callback or the interpreter's shutdown),
     so it is ignored. `kill -9` still ends a command at any moment (its journal and transaction file resume it)."""
     if not _stopping.is_set():
-        _stopping.set()
-        raise KeyboardInterrupt
+        stop_command()
 
 
 @contextlib.contextmanager

@@ -32,7 +32,7 @@ from types import MappingProxyType
 from typing import Any
 
 from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_cause
-from adademo_lerobot.core.interrupts import raise_keyboard_interrupt
+from adademo_lerobot.core.interrupts import command_starts, raise_keyboard_interrupt
 from adademo_lerobot.loop.configs import LEROBOT_CHOICE
 
 
@@ -301,6 +301,7 @@ def run_command(
     argv = sys.argv[1:]
     # Ctrl-C, SIGTERM and a closed terminal's SIGHUP stop a command, once (`raise_keyboard_interrupt`); an ignored
     # signal stays so (Ctrl-C of a job in the background, SIGHUP under nohup).
+    command_starts()
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
         for sig, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGHUP, signal.SIG_DFL)):

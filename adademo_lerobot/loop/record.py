@@ -44,6 +44,7 @@ from pathlib import Path
 from adademo_lerobot.core.episodes import TaskRoundRecord
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import exclusive_use
+from adademo_lerobot.core.interrupts import stop_command
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.check import check_dataset_integrity
 from adademo_lerobot.dataset.info import read_info
@@ -224,8 +225,8 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
                 }
             )
             records = [ctx.with_costs(r) for r in strategy.expand(ctx)]
-        except StopRecording:
-            raise KeyboardInterrupt from None
+        except StopRecording:  # the person's request: the command stops as on Ctrl-C
+            stop_command()
         except ConnectionError as err:  # LeRobot's DeviceNotConnectedError, a serial port gone, ...
             raise AdaDemoError(
                 f"the robot or teleoperator disconnected ({' '.join(str(err).split())[:200]}): reconnect it and rerun "
