@@ -126,9 +126,13 @@ class HeldInterrupts:
             raise raised[0]
 
 
-def ignore_interrupts(*_) -> None:
-    """A DataLoader worker's `worker_init_fn`: a terminal's Ctrl-C (and SIGHUP) reaches the loader's workers too,
-    and a worker that quits on it leaves a held training waiting for a batch that never comes; the main process
-    ends the workers itself when it stops. SIGTERM stays: torch's last resort for a stuck worker."""
+def detach_from_group_signals(*_) -> None:
+    """A DataLoader worker's `worker_init_fn`: a signal sent to the command's process group (a terminal's Ctrl-C
+    or SIGHUP, `kill -TERM -PGID`, a service manager's stop) would reach the loader's workers too, and a worker that
+    quits on it makes torch fail the held training ("DataLoader worker ... killed by signal") before it saves its
+    step. So the worker leaves the group, and ignores Ctrl-C and SIGHUP: the main process stops it when it stops,
+    and it exits by itself within seconds if the main process dies (torch's watchdog). A SIGTERM sent to the worker
+    itself still ends it: torch's last resort for a stuck worker."""
+    os.setpgid(0, 0)
     for sig in (signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)

@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_cause
 from adademo_lerobot.core.files import check_writable_location
-from adademo_lerobot.core.interrupts import HeldInterrupts, ignore_interrupts
+from adademo_lerobot.core.interrupts import HeldInterrupts, detach_from_group_signals
 from adademo_lerobot.core.progress import show
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
@@ -459,7 +459,7 @@ def weighted_loader(cfg: AdaDemoTrainConfig, dataset, episodes, scheme, step: in
                 "prefetch_factor": cfg.prefetch_factor,
                 "persistent_workers": cfg.persistent_workers,
                 "multiprocessing_context": cfg.dataloader_multiprocessing_context,
-                "worker_init_fn": ignore_interrupts,  # the training stops them (HeldInterrupts)
+                "worker_init_fn": detach_from_group_signals,  # the training stops them (HeldInterrupts)
             }
     return torch.utils.data.DataLoader(
         frames,
