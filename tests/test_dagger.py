@@ -400,6 +400,7 @@ def run_args(root: Path, checkpoint: Path, run_dir: Path) -> list[str]:
     ]
 
 
+@pytest.mark.slow  # adademo-record continuing the same DAgger data runs by default
 @requires_rendering
 def test_adademo_run_continues_a_dagger_dataset_of_the_simulated_robot(dagger, tmp_path):
     """Two rounds of adademo-run on lerobot-rollout's DAgger data from the simulated robot: the dataset is a

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pandas as pd
+import pytest
 from conftest import BIN, assert_cli_error, file_digests, replay, run_cli
 
 from adademo_lerobot.dataset.interventions import imitation_units
@@ -184,6 +185,7 @@ def test_a_killed_round_resumes_to_the_dataset_an_uninterrupted_round_makes(reac
     pd.testing.assert_frame_equal(frames(killed), frames(whole))
 
 
+@pytest.mark.slow  # a killed round with kept rollouts: the test above, by default
 def test_a_killed_round_of_the_loop_that_pays_for_rollouts_resumes_to_the_same_dataset(reach, tmp_path):
     """The budgeted strategy with a rollout cost (its own loop over the round: evaluate, demonstrate from fresh
     states, probe), killed once rollouts are journaled: the rerun ends with the dataset and the ledger row of an

@@ -187,6 +187,7 @@ def test_a_budgeted_round_with_a_person_spends_exactly_its_budget_every_round(re
 
 
 @requires_rendering
+@pytest.mark.slow  # the strategy itself: test_expand.py's rollout-cost rounds, by default
 def test_a_person_runs_the_strategy_that_pays_for_its_policy_episodes(recorded, tmp_path):
     """`--strategy.rollout_cost` at a robot, two rounds within their budgets of episodes: in the first, a policy
     episode costs 3 demonstrations, so none is worth running and every demonstration is the person's from a new

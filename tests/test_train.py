@@ -157,12 +157,12 @@ def test_a_resumed_training_ends_with_the_weights_of_an_uninterrupted_one(reach_
     )  # fmt: skip
 
 
-STEPS = ["--steps=150", "--save_freq=50", "--torch_threads=1", "--in_memory=false", "--num_workers=1"]
+STEPS = ["--steps=60", "--save_freq=20", "--torch_threads=1", "--in_memory=false", "--num_workers=1"]
 
 
 def stop_between_checkpoints(common: list[str], out: Path, sig: int) -> int:
     """`adademo-train` stopped by `sig` sent to its whole process group (its loader worker too), as a terminal's
-    Ctrl-C or `kill -TERM -PGID` is, between its checkpoints 50 and 100: the step it says it stopped at and saved."""
+    Ctrl-C or `kill -TERM -PGID` is, between its checkpoints 20 and 40: the step it says it stopped at and saved."""
     import psutil  # accelerate's dependency
 
     from adademo_lerobot.loop.train import find_last_checkpoint, saved_on_interrupt
@@ -177,8 +177,8 @@ def stop_between_checkpoints(common: list[str], out: Path, sig: int) -> int:
         start_new_session=True,
     )
     deadline = time.time() + 300
-    while find_last_checkpoint(out) is None:  # step 50 saved: stop between it and step 100
-        assert time.time() < deadline and proc.poll() is None, "training did not reach step 50"
+    while find_last_checkpoint(out) is None:  # step 20 saved: stop between it and step 40
+        assert time.time() < deadline and proc.poll() is None, "training did not reach step 20"
         time.sleep(0.02)
     # The loader's workers are outside the group the signal goes to: only the training stops them (when the
     # signal comes while it waits for a batch, a worker killed by it would fail the training before it saves).
@@ -191,9 +191,9 @@ def stop_between_checkpoints(common: list[str], out: Path, sig: int) -> int:
     resume = "interrupted: rerun the same command with --resume=true to continue from the last checkpoint"
     assert err.strip().splitlines()[-1] == resume
     step = int(re.search(r"stopped at step (\d+) and saved it", stdout + err).group(1))
-    assert 50 <= step < 150, step  # the signal came after step 50's checkpoint, long before the end
+    assert 20 <= step < 60, step  # the signal came after step 20's checkpoint, before the end
     held = find_last_checkpoint(out)
-    assert int(held.name) == step and (step % 50 == 0) != saved_on_interrupt(held)
+    assert int(held.name) == step and (step % 20 == 0) != saved_on_interrupt(held)
     return step
 
 
@@ -202,7 +202,8 @@ def test_ctrl_c_saves_the_step_it_stopped_at_and_the_resumed_training_equals_an_
 ):
     """A Ctrl-C between checkpoints finishes the step, saves it and exits 130; resumed from there, the training
     ends with an uninterrupted one's weights and checkpoints (the interrupt's checkpoint is removed at the next).
-    Batches come from a loader worker, and the Ctrl-C goes to the whole process group, as a terminal's does."""
+    Batches come from a loader worker, and the Ctrl-C goes to the whole process group, as a terminal's does (and
+    `kill -TERM -PGID`): the worker, outside that group, gets none of it."""
     from safetensors.torch import load_file
 
     common = [*data_args(reach_push_dataset), *TINY_ACT, *STEPS]
@@ -217,18 +218,7 @@ def test_ctrl_c_saves_the_step_it_stopped_at_and_the_resumed_training_equals_an_
     a, b = weights(whole), weights(stopped)
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     names = [sorted(p.name for p in (out / "checkpoints").iterdir()) for out in (whole, stopped)]
-    assert names[0] == names[1] == ["000050", "000100", "000150", "last"]
-
-
-def test_sigterm_to_the_process_group_saves_the_step_though_the_loader_workers_get_it_too(
-    reach_push_dataset, tmp_path
-):
-    """`kill -TERM -PGID` (a service manager's stop, a benchmark driver's) reaches the loader's workers as well; a
-    worker that died of it made torch fail the held training before it saved its step. The workers leave the
-    group, so the training stops as on Ctrl-C."""
-    stop_between_checkpoints(
-        [*data_args(reach_push_dataset), *TINY_ACT, *STEPS], tmp_path / "out", signal.SIGTERM
-    )
+    assert names[0] == names[1] == ["000020", "000040", "000060", "last"]
 
 
 @pytest.mark.slow
