@@ -133,6 +133,7 @@ def detach_from_group_signals(*_) -> None:
     step. So the worker leaves the group, and ignores Ctrl-C and SIGHUP: the main process stops it when it stops,
     and it exits by itself within seconds if the main process dies (torch's watchdog). A SIGTERM sent to the worker
     itself still ends it: torch's last resort for a stuck worker."""
-    os.setpgid(0, 0)
+    with contextlib.suppress(OSError):  # (EPERM, say) a training never fails over it
+        os.setpgid(0, 0)
     for sig in (signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)
