@@ -520,6 +520,8 @@ def phase_report(seeds: list[int], arms: list[str]) -> None:
     from efficiency_report import write_report
 
     summaries = [json.loads(p.read_text()) for p in SUMMARIES.glob("seed*-*.json")]
+    if not summaries:
+        sys.exit(f"error: no summaries in {SUMMARIES} yet (seed<S>-<arm>.json): run `arms` first")
     machines = sorted({s["machine"].split("; machine: ")[-1] for s in summaries})
     tasks = summaries[0]["tasks"]
     # The recipe each run was exported with (summaries from before it was recorded: this command's --recipe).
