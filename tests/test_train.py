@@ -8,7 +8,6 @@ import shutil
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -157,18 +156,23 @@ def test_a_resumed_training_ends_with_the_weights_of_an_uninterrupted_one(reach_
     )  # fmt: skip
 
 
-STEPS = ["--steps=60", "--save_freq=20", "--torch_threads=1", "--in_memory=false", "--num_workers=1"]
-
-
-def stop_between_checkpoints(common: list[str], out: Path, sig: int) -> int:
-    """`adademo-train` stopped by `sig` sent to its whole process group (its loader worker too), as a terminal's
-    Ctrl-C or `kill -TERM -PGID` is, between its checkpoints 20 and 40: the step it says it stopped at and saved."""
+def test_ctrl_c_saves_the_step_it_stopped_at_and_the_resumed_training_equals_an_uninterrupted_one(
+    reach_push_dataset, tmp_path
+):
+    """A Ctrl-C between checkpoints finishes the step, saves it and exits 130; resumed from there, the training
+    ends with an uninterrupted one's weights and checkpoints (the interrupt's checkpoint is removed at the next).
+    Batches come from a loader worker, and the Ctrl-C goes to the whole process group, as a terminal's does (and
+    `kill -TERM -PGID`): the worker, outside that group, gets none of it."""
     import psutil  # accelerate's dependency
+    from safetensors.torch import load_file
 
     from adademo_lerobot.loop.train import find_last_checkpoint, saved_on_interrupt
 
+    steps = ["--steps=60", "--save_freq=20", "--torch_threads=1", "--in_memory=false", "--num_workers=1"]
+    common = [*data_args(reach_push_dataset), *TINY_ACT, *steps]
+    stopped, whole = tmp_path / "stopped", tmp_path / "whole"
     proc = subprocess.Popen(
-        [str(BIN / "adademo-train"), *common, f"--output_dir={out}"],
+        [str(BIN / "adademo-train"), *common, f"--output_dir={stopped}"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -177,38 +181,23 @@ def stop_between_checkpoints(common: list[str], out: Path, sig: int) -> int:
         start_new_session=True,
     )
     deadline = time.time() + 300
-    while find_last_checkpoint(out) is None:  # step 20 saved: stop between it and step 40
+    while find_last_checkpoint(stopped) is None:  # step 20 saved: stop between it and step 40
         assert time.time() < deadline and proc.poll() is None, "training did not reach step 20"
         time.sleep(0.02)
     # The loader's workers are outside the group the signal goes to: only the training stops them (when the
     # signal comes while it waits for a batch, a worker killed by it would fail the training before it saves).
     workers = [p for p in psutil.Process(proc.pid).children() if p.name() == "pt_data_worker"]  # torch's name
     assert workers and all(os.getpgid(w.pid) != proc.pid for w in workers), workers
-    os.killpg(proc.pid, sig)
-    stdout, err = proc.communicate(timeout=120)
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: to the command and its process group
+    out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err[-2000:]
     assert "Traceback" not in err and "DataLoader worker" not in err, err[-2000:]
     resume = "interrupted: rerun the same command with --resume=true to continue from the last checkpoint"
     assert err.strip().splitlines()[-1] == resume
-    step = int(re.search(r"stopped at step (\d+) and saved it", stdout + err).group(1))
+    step = int(re.search(r"stopped at step (\d+) and saved it", out + err).group(1))
     assert 20 <= step < 60, step  # the signal came after step 20's checkpoint, before the end
-    held = find_last_checkpoint(out)
+    held = find_last_checkpoint(stopped)
     assert int(held.name) == step and (step % 20 == 0) != saved_on_interrupt(held)
-    return step
-
-
-def test_ctrl_c_saves_the_step_it_stopped_at_and_the_resumed_training_equals_an_uninterrupted_one(
-    reach_push_dataset, tmp_path
-):
-    """A Ctrl-C between checkpoints finishes the step, saves it and exits 130; resumed from there, the training
-    ends with an uninterrupted one's weights and checkpoints (the interrupt's checkpoint is removed at the next).
-    Batches come from a loader worker, and the Ctrl-C goes to the whole process group, as a terminal's does (and
-    `kill -TERM -PGID`): the worker, outside that group, gets none of it."""
-    from safetensors.torch import load_file
-
-    common = [*data_args(reach_push_dataset), *TINY_ACT, *STEPS]
-    stopped, whole = tmp_path / "stopped", tmp_path / "whole"
-    stop_between_checkpoints(common, stopped, signal.SIGINT)
     run_cli("adademo-train", *common, f"--output_dir={stopped}", "--resume=true")
     run_cli("adademo-train", *common, f"--output_dir={whole}")
 

@@ -183,9 +183,8 @@ def test_ctrl_c_during_a_commit_rolls_back_and_the_rerun_finishes_exactly(
         assert listed is not None, "no commit began"
         proc.send_signal(signal.SIGINT)
         time.sleep(0.005)
-        if (
-            proc.poll() is None
-        ):  # Ctrl-C again while it rolls back and leaves: no traceback, the rollback whole
+        # Ctrl-C again while it rolls back and leaves: no traceback, the rollback whole.
+        if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
         _, stderr = proc.communicate(timeout=120)
         if proc.returncode == 0:  # the last commit ended, and the command with it, before the signal was sent

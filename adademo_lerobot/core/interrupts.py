@@ -87,9 +87,8 @@ class HeldInterrupts:
     """Inside `with HeldInterrupts() as held:`, the first Ctrl-C or SIGTERM sets `held.requested` instead of
     raising KeyboardInterrupt, for the loop to save its state and stop at its next step; a second one raises at
     once; `stop()` then raises what the first would have. Only signals that would have raised KeyboardInterrupt
-    anyway are held (Python's Ctrl-C handler, the
-    commands' SIGTERM handler): an ignored signal, the default SIGTERM or a caller's own handler is left alone,
-    and outside the main thread (or with `enabled=False`) nothing changes."""
+    anyway are held (Python's Ctrl-C handler, the commands' handler): an ignored signal, the default SIGTERM or a
+    caller's own handler is left alone, and outside the main thread (or with `enabled=False`) nothing changes."""
 
     def __init__(self, enabled: bool = True) -> None:
         self.requested = False
