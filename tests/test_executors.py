@@ -1,6 +1,7 @@
 """`--executor=ray` against `--executor=local` on a local Ray cluster this module starts: the same initial states,
 outcomes, dataset episodes (same actions, same order) and ledger, whatever the number of workers; and faults:
-a worker killed mid-round, and the driver killed mid-round, each followed by a complete, identical round."""
+a worker killed mid-round, the driver killed mid-round and Ctrl-C mid-round, each followed by a complete, identical
+round."""
 
 from __future__ import annotations
 
@@ -18,9 +19,10 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-from conftest import BIN, run_cli
+from conftest import BIN, file_digests, run_cli
 
 from adademo_lerobot.dataset.check import check_dataset_integrity
+from adademo_lerobot.dataset.layout import ADADEMO_DIR
 from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 
@@ -424,6 +426,43 @@ def test_a_killed_driver_resumes_from_the_journal_to_the_same_round(
     assert committed and all(demos.count(key) == 1 for key in committed)
     state = json.loads((resumed / "meta" / "info.json").read_text())
     assert state["total_episodes"] == len(read_episode_metadata(reference))
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_a_ray_round_stops_within_seconds_leaves_the_dataset_as_it_was_and_the_rerun_finishes_it(
+    reach_push_dataset, ckpt, ray_address, tmp_path
+):
+    """Ctrl-C while the workers evaluate, the whole command: it exits 130 with one line within seconds (2.5 s here;
+    a long unit given up at once is the test above), leaves the dataset's LeRobot files as they were (stock LeRobot
+    opens it), and the same command then finishes the round as an uninterrupted one does."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    reference, stopped = reference_round_and_copy(reach_push_dataset, ckpt, tmp_path)
+    before = {k: v for k, v in file_digests(stopped).items() if not k.startswith(ADADEMO_DIR + "/")}
+    args = [*expand_args(stopped, ckpt), *ray_flags(ray_address)]
+    proc = subprocess.Popen(
+        [str(BIN / "adademo-expand"), *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        # Ctrl-C as in a terminal, even when the suite itself runs in the background (which ignores SIGINT).
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    wait_for(lambda: evaluations_so_far(stopped) >= 1, "the first evaluations", proc)
+    proc.send_signal(signal.SIGINT)
+    signalled = time.perf_counter()
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr[-3000:]
+    assert time.perf_counter() - signalled < 30, "the command hung as it stopped"
+    last = stderr.replace("\r", "\n").strip().splitlines()[-1]
+    assert "Traceback" not in stderr, stderr[-3000:]
+    assert last.startswith("interrupted: rerun the same command"), last
+    after = {k: v for k, v in file_digests(stopped).items() if not k.startswith(ADADEMO_DIR + "/")}
+    assert after == before and not read_ledger(stopped)
+    episodes_before = len(read_episode_metadata(reach_push_dataset))
+    assert LeRobotDataset("local/demo", root=stopped).num_episodes == episodes_before  # stock LeRobot opens
+    run_cli("adademo-expand", *args)
+    same_round(reference, stopped, 1)
 
 
 @pytest.mark.slow
