@@ -66,6 +66,18 @@ AVX2_KERNELS = {
 }
 
 
+def avx2_kernels() -> dict[str, str]:
+    """AVX2_KERNELS, and on an Intel CPU MKL's reproducible AVX2 branch (MKL_CBWR=AVX2: fixed cache sizes and
+    reduction order, the same bits on every Intel AVX2 CPU, MKL's documented guarantee). On the 2-core Intel Xeon of
+    2026-12-07 it trains the same weights bit for bit as the pin without it. MKL gives no such guarantee on other
+    vendors' CPUs (there MKL_CBWR=AVX2 falls back to its own dispatch), so AMD machines keep the plain pin and
+    reproduce their earlier runs; MKL, torch's BLAS, is the likeliest reason an AMD EPYC and this Xeon trained
+    different Adroit round-0 policies from the same demonstrations (not verified on an EPYC)."""
+    cpuinfo = Path("/proc/cpuinfo")
+    intel = cpuinfo.exists() and "GenuineIntel" in cpuinfo.read_text()
+    return {**AVX2_KERNELS, "MKL_CBWR": "AVX2"} if intel else dict(AVX2_KERNELS)
+
+
 def machine_line() -> str:
     """Date, CPU, cores and the versions that decide the numbers."""
     import os

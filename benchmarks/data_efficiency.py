@@ -64,7 +64,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from _common import AVX2_KERNELS, BIN, RESULTS, ROOT, machine_line
+from _common import BIN, RESULTS, ROOT, avx2_kernels, machine_line
 
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.evaluation.policy import READOUT_FIELDS
@@ -624,7 +624,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.cpu_isa == "avx2":
-        os.environ.update(AVX2_KERNELS)  # for the runs this driver starts
+        os.environ.update(avx2_kernels())  # for the runs this driver starts
     SUMMARIES, RECIPE = RESULTS / args.summaries, args.recipe.resolve()
     TEST_STATES[0] = args.test_states
     SUMMARIES.mkdir(parents=True, exist_ok=True)
