@@ -204,9 +204,10 @@ def _expand(cfg, suite, executor, strategy, needs_policy, root, round_index, on_
     if round_index is None:
         round_index = next_round(root)
     journal = None if cfg.plan_only else RoundJournal(root, round_index)
+    # No rate or time left: tasks differ too much in cost (and a resumed task ends at once) for either to mean much.
     bar = tqdm(
         total=len(suite.tasks), desc=f"round {round_index} ({strategy.name})", unit="task", dynamic_ncols=True,
-        disable=cfg.plan_only,
+        disable=cfg.plan_only, bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]",
     )  # fmt: skip
 
     def progress(task: str, record: TaskRoundRecord) -> None:
