@@ -37,7 +37,9 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
 
 `--cpu_isa avx2` (the default) pins the runs' numeric kernels to AVX2, so that machines with and without AVX-512
 train closer policies (equal on MT10 seeds 0 and 1, not on seed 2: compare round 0 before pairing their summaries;
-`native`: the machine's own kernels; the summary's machine line says which).
+`native`: the machine's own kernels; the summary's machine line says which). On an Intel CPU it also sets MKL's
+reproducible AVX2 branch (`MKL_CBWR=AVX2`, the same bits on every Intel AVX2 CPU); `kernel_reproducibility.py`
+says in a few minutes whether a machine trains the same weights as the ones that ran the committed summaries.
 
 `--test_states per_seed` evaluates each seed on its own fixed states (--eval.seed=100+seed), so that the intervals
 over seeds include the sampling of the test states; `shared` (the default, and every folder written before it)
@@ -619,8 +621,9 @@ def main() -> None:
         "--cpu_isa",
         choices=["avx2", "native"],
         default="avx2",
-        help="avx2 (default): the runs' numeric kernels pinned to AVX2, so that an AVX-512 machine trains closer "
-        "policies to an AVX2 one's (compare round 0 before pairing); native: the machine's own",
+        help="avx2 (default): the runs' numeric kernels pinned to AVX2 (and MKL's reproducible AVX2 branch on Intel "
+        "CPUs), so that an AVX-512 machine trains closer policies to an AVX2 one's (compare round 0 before pairing); "
+        "native: the machine's own",
     )
     args = parser.parse_args()
     if args.cpu_isa == "avx2":
