@@ -99,7 +99,8 @@ def serve() -> None:
                 break
             time.sleep(0.01)
         code = os.waitstatus_to_exitcode(status)
-        print(json.dumps({"returncode": code, "stdout": out.name, "stderr": err.name}), flush=True)
+        reply = {"id": request["id"], "returncode": code, "stdout": out.name, "stderr": err.name}
+        print(json.dumps(reply), flush=True)
 
 
 if __name__ == "__main__":

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -87,10 +89,17 @@ class CommandServer:
     def __init__(self):
         self.env = dict(os.environ)
         server = str(Path(__file__).with_name("command_server.py"))
+        # Its own process group: a test that gives up on a command (pytest-timeout) ends the server and the
+        # command together (`abandon`).
         self.proc = subprocess.Popen(
-            [sys.executable, server], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+            [sys.executable, server],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
         )
         assert "ready" in json.loads(self.proc.stdout.readline())
+        self.requests = 0
 
     # Set by importing LeRobot's env configs in the test process; only a cache folder, which a command may share.
     HARMLESS = ("TORCHINDUCTOR_CACHE_DIR",)
@@ -100,16 +109,26 @@ class CommandServer:
         return not any(k.startswith(self.IMPORT_TIME) and k not in self.HARMLESS for k in changed)
 
     def run(self, command: str, args: list[str], timeout: int) -> subprocess.CompletedProcess:
+        self.requests += 1
         request = {
+            "id": self.requests,
             "command": command,
             "args": list(args),
             "cwd": os.getcwd(),
             "env": dict(os.environ),
             "timeout": timeout,
         }
-        self.proc.stdin.write(json.dumps(request) + "\n")
-        self.proc.stdin.flush()
-        reply = json.loads(self.proc.stdout.readline())
+        try:
+            self.proc.stdin.write(json.dumps(request) + "\n")
+            self.proc.stdin.flush()
+            reply = json.loads(self.proc.stdout.readline())
+        except BaseException:
+            # Left waiting (a test's timeout, Ctrl-C): the reply would come later and be read as the next
+            # command's, so every later test would get its predecessor's output. End this server; the next
+            # command starts a new one.
+            self.abandon()
+            raise
+        assert reply["id"] == request["id"], (reply, request)
         outputs = []
         for key in ("stdout", "stderr"):
             path = Path(reply[key])
@@ -120,6 +139,14 @@ class CommandServer:
     def close(self) -> None:
         self.proc.stdin.close()
         self.proc.wait(timeout=60)
+
+    def abandon(self) -> None:
+        """Kill the server and the command it runs (one process group), and forget it."""
+        global _SERVER
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(timeout=60)
+        _SERVER = None
 
 
 _SERVER: CommandServer | None = None

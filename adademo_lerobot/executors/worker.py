@@ -16,6 +16,7 @@ import numpy as np
 from adademo_lerobot.collectors import CollectorConfig, make_collector
 from adademo_lerobot.collectors.takeover import TakeoverArgs
 from adademo_lerobot.core.episodes import CollectionResult, EpisodeRecord
+from adademo_lerobot.core.threads import set_torch_threads
 from adademo_lerobot.suites import make_suite, suite_config_from_dict
 
 
@@ -28,9 +29,7 @@ class EpisodeWorker:
         device: str,
         torch_threads: int,
     ):
-        import torch
-
-        torch.set_num_threads(torch_threads)
+        set_torch_threads(torch_threads)
         self.suite = make_suite(suite_config_from_dict(suite_config))
         self.collector_config = collector_config
         self._collector = None

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from adademo_lerobot.core.episodes import Demonstration, TaskRoundRecord
+from adademo_lerobot.core.threads import set_torch_threads
 from adademo_lerobot.dataset.info import read_info
 from adademo_lerobot.dataset.layout import ADADEMO_DIR
 from adademo_lerobot.dataset.ledger import RoundJournal
@@ -29,7 +30,6 @@ class Session:
     """The connected robot, teleoperator, policy and person of one round, and its journal."""
 
     def __init__(self, cfg: RecordConfig, robot, teleop, person, features: dict, round_index: int):
-        import torch
         from lerobot.common.control_utils import predict_action
         from lerobot.policies.utils import make_robot_action
         from lerobot.utils.constants import ACTION, OBS_STR
@@ -42,7 +42,7 @@ class Session:
         self.root = Path(cfg.dataset.root)
         self.dataset = DemoDataset.open_recorded(cfg.dataset.repo_id, self.root)
         self.journal = RoundJournal(self.root, round_index)
-        torch.set_num_threads(cfg.torch_threads)
+        set_torch_threads(cfg.torch_threads)
         self.loaded = load_policy(cfg.policy.path, cfg.device)
         self.fps = read_info(self.root)["fps"]
         self.max_steps = max(1, round(cfg.dataset.episode_time_s * self.fps))

@@ -32,6 +32,7 @@ from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_caus
 from adademo_lerobot.core.files import check_writable_location
 from adademo_lerobot.core.interrupts import HeldInterrupts, detach_from_group_signals
 from adademo_lerobot.core.progress import show
+from adademo_lerobot.core.threads import set_torch_threads
 from adademo_lerobot.dataset.in_memory import InMemoryFrames, whole_batch
 from adademo_lerobot.dataset.interventions import imitation_units, intervention_flags
 from adademo_lerobot.dataset.layout import COL_SOURCE, POLICY_SOURCE
@@ -277,7 +278,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
     from lerobot.utils.random_utils import set_seed
 
     cfg.validate()
-    torch.set_num_threads(cfg.torch_threads)
+    threads = set_torch_threads(cfg.torch_threads)
     if cfg.cudnn_deterministic:  # as lerobot-train does
         torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = True, False
     root = Path(cfg.dataset.root)
@@ -330,7 +331,7 @@ def train(cfg: AdaDemoTrainConfig) -> Path:
         "sampler_alpha": cfg.sampler_alpha,
         "lr_schedule": cfg.lr_schedule,
         "in_memory": cfg.in_memory,
-        "torch_threads": cfg.torch_threads,
+        "torch_threads": threads,
         **({"autonomous_weight": cfg.autonomous_weight} if flags is not None or kept_rollouts else {}),
         "episodes": int(len(episodes)),
         "frames": int(dataset.num_frames),
