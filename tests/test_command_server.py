@@ -14,6 +14,7 @@ class GaveUpError(Exception):
     pass
 
 
+@pytest.mark.slow  # 20 s, most of it the new server's imports; what it guards shows only after a test's timeout
 def test_a_command_given_up_on_ends_with_its_server_and_the_next_one_gets_its_own_output(tmp_path):
     server = command_server()
     if server is None:
