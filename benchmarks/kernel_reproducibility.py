@@ -1,4 +1,4 @@
-"""Will this machine train the same weights as the machines that ran the committed benchmarks? 30 seconds to know.
+"""Will this machine train the same weights as the machines that ran the committed benchmarks? A few minutes to know.
 
     python benchmarks/kernel_reproducibility.py [--steps 150] [--repeats 3]
 
@@ -6,7 +6,7 @@ Trains the Adroit table's ACT (`recipes/adroit_table_ensembled.yaml`'s policy, o
 synthetic batch for `--steps` steps under each setting of the numeric kernels, each in a new process (the settings
 are read when torch loads), and prints the trained weights' digest and the milliseconds per step. Two machines whose
 digests agree under the setting the benchmarks use (`data_efficiency.py --cpu_isa avx2`, "avx2 pin (benchmarks)")
-train the same policies from the same data; otherwise their runs pair only with runs of their own kind
+should train the same policies from the same data (compare round 0 all the same); otherwise their runs pair only with runs of their own kind
 (`data_efficiency.py report` checks round 0 per task before it pairs). Writes (or replaces) this CPU's section of
 benchmarks/results/kernel_reproducibility.md, keeping the other machines' sections, and says which of their
 digests this machine's equal.
@@ -38,8 +38,9 @@ HEADER = """# Do two machines train the same weights? Kernel settings and their 
 
 Command: `python benchmarks/kernel_reproducibility.py`, one section per CPU (a rerun replaces its own). Each row:
 the Adroit table's ACT trained on one fixed synthetic batch, one torch thread, in a new process per setting; the
-digest of the trained weights and milliseconds per step (median of interleaved runs). Equal digests under "avx2 pin (benchmarks)" (what
-`data_efficiency.py` sets) mean the two machines train the same policies from the same data.
+digest of the trained weights and milliseconds per step (median of interleaved runs). Equal digests under "avx2 pin
+(benchmarks)" (what `data_efficiency.py` sets) say that two machines should train the same policies from the same
+data; `data_efficiency.py report` still compares their round 0 before it pairs their runs.
 """
 
 
