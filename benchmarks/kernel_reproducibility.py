@@ -6,8 +6,8 @@ Trains the Adroit table's ACT (`recipes/adroit_table_ensembled.yaml`'s policy, o
 synthetic batch for `--steps` steps under each setting of the numeric kernels, each in a new process (the settings
 are read when torch loads), and prints the trained weights' digest and the milliseconds per step. Two machines whose
 digests agree under the setting the benchmarks use (`data_efficiency.py --cpu_isa avx2`, "avx2 pin (benchmarks)")
-should train the same policies from the same data (compare round 0 all the same); otherwise their runs pair only with runs of their own kind
-(`data_efficiency.py report` checks round 0 per task before it pairs). Writes (or replaces) this CPU's section of
+should train the same policies from the same data (compare round 0 all the same); otherwise their runs pair only
+with runs of their own kind (`data_efficiency.py report` checks round 0 per task before it pairs). Writes (or replaces) this CPU's section of
 benchmarks/results/kernel_reproducibility.md, keeping the other machines' sections, and says which of their
 digests this machine's equal.
 """
@@ -88,9 +88,9 @@ def measure(steps: int, repeats: int) -> list[tuple[str, str, float]]:
     """Each setting `repeats` times, the settings interleaved (ABCAB...): the median step time, and one digest (a
     setting whose digest changes between its runs is not deterministic: that is an error)."""
     digests, times = {}, {name: [] for name in SETTINGS}
+    clean = {k: v for k, v in os.environ.items() if k not in {*AVX2_KERNELS, "MKL_CBWR"}}
     for _ in range(repeats):
         for name, env in SETTINGS.items():
-            clean = {k: v for k, v in os.environ.items() if k not in {*AVX2_KERNELS, "MKL_CBWR"}}
             proc = subprocess.run(
                 [sys.executable, __file__, "--child", f"--steps={steps}"],
                 env={**clean, **env, "OMP_NUM_THREADS": "1"},

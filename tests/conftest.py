@@ -217,6 +217,20 @@ def file_digests(root: Path) -> dict[str, str]:
     }
 
 
+def lerobot_files(root: Path) -> dict[str, str]:
+    """`file_digests` of the dataset's LeRobot files: everything but our own folder (journals, shards)."""
+    from adademo_lerobot.dataset.layout import ADADEMO_DIR
+
+    return {k: v for k, v in file_digests(root).items() if not k.startswith(ADADEMO_DIR + "/")}
+
+
+def stock_episodes(root: Path, repo_id: str = "local/demo") -> int:
+    """The dataset opened by stock LeRobot: its episode count."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset(repo_id, root=root).num_episodes
+
+
 def mount_small_disk(path: Path, size: str) -> None:
     path.mkdir(parents=True, exist_ok=True)
     proc = subprocess.run(

@@ -19,10 +19,9 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-from conftest import BIN, file_digests, run_cli
+from conftest import BIN, lerobot_files, run_cli, stock_episodes
 
 from adademo_lerobot.dataset.check import check_dataset_integrity
-from adademo_lerobot.dataset.layout import ADADEMO_DIR
 from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 
@@ -435,10 +434,8 @@ def test_ctrl_c_in_a_ray_round_stops_within_seconds_leaves_the_dataset_as_it_was
     """Ctrl-C while the workers evaluate, the whole command: it exits 130 with one line within seconds (2.5 s here;
     a long unit given up at once is the test above), leaves the dataset's LeRobot files as they were (stock LeRobot
     opens it), and the same command then finishes the round as an uninterrupted one does."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     reference, stopped = reference_round_and_copy(reach_push_dataset, ckpt, tmp_path)
-    before = {k: v for k, v in file_digests(stopped).items() if not k.startswith(ADADEMO_DIR + "/")}
+    before = lerobot_files(stopped)
     args = [*expand_args(stopped, ckpt), *ray_flags(ray_address)]
     proc = subprocess.Popen(
         [str(BIN / "adademo-expand"), *args],
@@ -457,10 +454,8 @@ def test_ctrl_c_in_a_ray_round_stops_within_seconds_leaves_the_dataset_as_it_was
     last = stderr.replace("\r", "\n").strip().splitlines()[-1]
     assert "Traceback" not in stderr, stderr[-3000:]
     assert last.startswith("interrupted: rerun the same command"), last
-    after = {k: v for k, v in file_digests(stopped).items() if not k.startswith(ADADEMO_DIR + "/")}
-    assert after == before and not read_ledger(stopped)
-    episodes_before = len(read_episode_metadata(reach_push_dataset))
-    assert LeRobotDataset("local/demo", root=stopped).num_episodes == episodes_before  # stock LeRobot opens
+    assert lerobot_files(stopped) == before and not read_ledger(stopped)
+    assert stock_episodes(stopped) == len(read_episode_metadata(reach_push_dataset))  # stock LeRobot opens it
     run_cli("adademo-expand", *args)
     same_round(reference, stopped, 1)
 

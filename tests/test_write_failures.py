@@ -19,7 +19,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import BIN, TINY_ACT, file_digests, leave_free, mount_small_disk, run_cli
+from conftest import (
+    BIN,
+    TINY_ACT,
+    file_digests,
+    leave_free,
+    lerobot_files,
+    mount_small_disk,
+    run_cli,
+    stock_episodes,
+)
 
 from adademo_lerobot.dataset.layout import ADADEMO_DIR, TXN_FILE
 from adademo_lerobot.dataset.ledger import read_ledger
@@ -31,12 +40,6 @@ UNIFORM = ["--strategy.type=uniform", "--strategy.demos_per_task=2"]
 def dataset_files(root: Path) -> dict[str, str]:
     """The dataset's files and digests, without the round's journal (the resume log, appended as it runs)."""
     return {k: v for k, v in file_digests(root).items() if not Path(k).name.startswith("journal-round-")}
-
-
-def stock_episodes(root: Path) -> int:
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    return LeRobotDataset("local/demo", root=root).num_episodes
 
 
 def round_episodes(root: Path, round_index: int) -> list[tuple]:
@@ -193,7 +196,7 @@ def test_ctrl_c_during_a_commit_rolls_back_and_the_rerun_finishes_exactly(
         assert "Traceback" not in stderr and "interrupted: rerun the same command" in stderr
         assert not txn.exists()
         stock_episodes(root)  # opens
-        files = {k for k in file_digests(root) if not k.startswith(ADADEMO_DIR + "/")}
+        files = set(lerobot_files(root))
         listed = {k for k in listed if not k.startswith(ADADEMO_DIR + "/")}
         if files == listed:  # the commit was rolled back: exactly the files from before it
             landed += 1
