@@ -317,6 +317,27 @@ def act_run(reach_push_dataset, tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def ckpt(act_run) -> Path:
+    """The weak ACT's last checkpoint (`act_run`)."""
+    return act_run / "checkpoints" / "last" / "pretrained_model"
+
+
+@pytest.fixture
+def dataset(reach_push_dataset, tmp_path) -> Path:
+    """A copy of the reach/push dataset the test may change."""
+    root = tmp_path / "ds"
+    shutil.copytree(reach_push_dataset, root)
+    return root
+
+
+def expand(root: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    """`adademo-expand` on the dataset at `root` (repo id local/demo)."""
+    return run_cli(
+        "adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args, check=check
+    )
+
+
+@pytest.fixture(scope="session")
 def stock_act_checkpoint(reach_push_dataset, tmp_path_factory) -> Path:
     """An ACT trained for 2 steps by stock `lerobot-train` on the reach/push dataset."""
     out = tmp_path_factory.mktemp("stock") / "run"

@@ -2,35 +2,14 @@
 expert takes over failed rollouts, the corrections are ordinary LeRobot episodes that replay exactly from their
 recorded start state, and the ledger counts what they cost."""
 
-import shutil
-
 import numpy as np
-import pytest
-from conftest import assert_cli_error, file_digests, replay, run_cli
+from conftest import assert_cli_error, expand, file_digests, replay, run_cli
 
 from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
 from adademo_lerobot.dataset.metadata import read_episode_metadata
 from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.base import full_state_step, split_full_state
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
-
-
-@pytest.fixture
-def dataset(reach_push_dataset, tmp_path):
-    root = tmp_path / "ds"
-    shutil.copytree(reach_push_dataset, root)
-    return root
-
-
-@pytest.fixture(scope="module")
-def ckpt(act_run):
-    return act_run / "checkpoints" / "last" / "pretrained_model"
-
-
-def expand(root, *args, check=True):
-    return run_cli(
-        "adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args, check=check
-    )
 
 
 def test_two_takeover_rounds_add_corrections_that_replay_exactly(dataset, ckpt):

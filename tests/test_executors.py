@@ -64,11 +64,6 @@ def ray_address(tmp_path_factory):
             os.environ[key] = value
 
 
-@pytest.fixture(scope="module")
-def ckpt(act_run):
-    return act_run / "checkpoints" / "last" / "pretrained_model"
-
-
 def ray_flags(address: str, workers: int = 2) -> list[str]:
     return ["--executor=ray", f"--ray.address={address}", f"--ray.num_workers={workers}"]
 

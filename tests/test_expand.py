@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from conftest import BIN, TINY_ACT_POLICY, assert_cli_error, file_digests, run_cli
+from conftest import BIN, TINY_ACT_POLICY, assert_cli_error, expand, file_digests, run_cli
 
 from adademo_lerobot.collectors import ScriptedCollectorConfig
 from adademo_lerobot.core.files import exclusive_use
@@ -24,24 +24,6 @@ from adademo_lerobot.suites import make_suite
 from adademo_lerobot.suites.metaworld import MetaWorldSuiteConfig
 
 TASKS = ("reach-v3", "push-v3")
-
-
-@pytest.fixture
-def dataset(reach_push_dataset, tmp_path):
-    root = tmp_path / "ds"
-    shutil.copytree(reach_push_dataset, root)
-    return root
-
-
-@pytest.fixture(scope="module")
-def ckpt(act_run):
-    return act_run / "checkpoints" / "last" / "pretrained_model"
-
-
-def expand(root, *args, check=True):
-    return run_cli(
-        "adademo-expand", "--dataset.repo_id=local/demo", f"--dataset.root={root}", *args, check=check
-    )
 
 
 def old_files_unchanged(before: dict, after: dict) -> None:

@@ -55,21 +55,22 @@ def plan_header(round_index: int, target: int, cap: int, caps: dict[str, int]) -
     return f"plan for round {round_index} (E={target}, CAP={cap}{lower}); nothing collected"
 
 
-def unfinished_rounds(root: Path) -> list[int]:
+def unfinished_rounds(root: Path, done: set[int] | None = None) -> list[int]:
     """Rounds journaled and not in the ledger (a journal of a round in the ledger is of a finished round whose
-    archiving a kill prevented: `finish_stale_journals`). Reads only."""
-    done = ledger_rounds(root)
+    archiving a kill prevented: `finish_stale_journals`); `done`: the ledger's rounds if already read. Reads only."""
+    done = ledger_rounds(root) if done is None else done
     return [r for r in RoundJournal.in_progress(root) if r not in done]
 
 
 def next_round(root: Path) -> int:
     """The round in progress (`unfinished_rounds`), else one past the last round of the ledger or the dataset.
     Reads only."""
-    unfinished = unfinished_rounds(root)
+    done = ledger_rounds(root)
+    unfinished = unfinished_rounds(root, done)
     if unfinished:
         return unfinished[0]
     eps = read_episode_metadata(root)
-    return max([0, *ledger_rounds(root), *(eps[COL_ROUND].tolist() if len(eps) else [])]) + 1
+    return max([0, *done, *(eps[COL_ROUND].tolist() if len(eps) else [])]) + 1
 
 
 def finish_stale_journals(root: Path) -> None:
