@@ -12,10 +12,11 @@ VENV="${ADADEMO_VENV:-$HOME/.venvs/adademo-lerobot}"
 LOCK=requirements.lock
 EXTRAS="test,ray,robot,so101"
 # This checkout and its LeRobot plugin distributions (plugins/*: LeRobot finds them by their names), editable; and
-# the example env plugin of docs/lerobot-env.md with its broken variants (examples/lerobot_env_*: its tests run
-# them). None of them is in the lock.
+# the examples the docs show, which the tests run: the env plugin of docs/lerobot-env.md with its broken variants
+# (examples/lerobot_env_*) and the strategy plugin of docs/extending.md (examples/adademo_lerobot_example). None of
+# them is in the lock.
 EDITABLES=(-e ".[$EXTRAS]")
-for plugin in plugins/*/ examples/lerobot_env_*/; do EDITABLES+=(-e "$plugin"); done
+for plugin in plugins/*/ examples/*/; do EDITABLES+=(-e "$plugin"); done
 # This machine's pip configuration may name local package folders that do not exist; pip warns about each.
 pip_quiet() { "$@" 2> >(grep -v "^WARNING: Location 'file://" >&2); }
 
@@ -58,7 +59,7 @@ install_system_packages() {
 
 lock_lines() { grep -v -E '^\s*(#|$)' "$LOCK" | sed 's/\s*#.*//' | tr '[:upper:]_' '[:lower:]-' | sort; }
 installed_lines() {
-  "$VENV/bin/python" -m pip freeze --all --exclude-editable 2>/dev/null | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example)' \
+  "$VENV/bin/python" -m pip freeze --all --exclude-editable 2>/dev/null | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example|adademo[-_]lerobot[-_]example)' \
     | tr '[:upper:]_' '[:lower:]-' | sort
 }
 
@@ -79,7 +80,7 @@ install_venv() {
       || die "pip could not install $LOCK into $VENV; see pip's output above"
   fi
   # Reinstalled when this checkout or one of its plugin/example distributions is missing (or is another checkout's).
-  local modules; modules=$(for d in plugins/*/ examples/lerobot_env_*/; do basename "$d"; done | paste -sd,)
+  local modules; modules=$(for d in plugins/*/ examples/*/; do basename "$d"; done | paste -sd,)
   if ! "$VENV/bin/python" -m pip show --quiet adademo-lerobot >/dev/null 2>&1 \
       || [ "$("$VENV/bin/python" -P -c 'import adademo_lerobot, os; print(os.path.dirname(os.path.dirname(adademo_lerobot.__file__)))' 2>/dev/null)" != "$PWD" ] \
       || ! "$VENV/bin/python" -P -c "import importlib.util, sys; sys.exit(any(importlib.util.find_spec(m) is None for m in '$modules'.split(',')))" 2>/dev/null; then
@@ -108,7 +109,7 @@ refresh_lock() {
     echo "# The whole resolved package set for adademo-lerobot (with extras [$EXTRAS]); setup.sh and CI install exactly this."
     echo "# Resolved $(date -u +%Y-%m-%d) on $(uname -m) Linux, $("$tmp/venv/bin/python" -V). Refresh deliberately:"
     echo "# bash setup.sh lock, then check the new set with bash setup.sh test and bash setup.sh quickstart (README)."
-    "$tmp/venv/bin/python" -m pip freeze --all --exclude-editable | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example)'
+    "$tmp/venv/bin/python" -m pip freeze --all --exclude-editable | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example|adademo[-_]lerobot[-_]example)'
   } > "$LOCK.new"
   if [ -f "$LOCK" ]; then diff <(grep -v '^#' "$LOCK") <(grep -v '^#' "$LOCK.new") || true; fi
   mv "$LOCK.new" "$LOCK"

@@ -84,6 +84,7 @@ class CommandServer:
         "TORCH",
         "LEROBOT",
         "ADADEMO_TESTS",
+        "PYTHONPATH",  # the import path: set when the interpreter starts
     )
 
     def __init__(self):

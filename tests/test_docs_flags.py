@@ -27,6 +27,7 @@ import dataclasses
 import importlib
 import inspect
 import re
+import sys
 import tomllib
 import types
 import typing
@@ -36,7 +37,11 @@ from pathlib import Path
 import draccus
 import pytest
 
+from adademo_lerobot.core.plugins import import_plugins
 from adademo_lerobot.loop.configs import LEROBOT_CHOICE
+
+# The commands import the installed plugins before reading flags; extending.md names the example plugin's flags.
+import_plugins(sys.path)
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md")])

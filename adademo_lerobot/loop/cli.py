@@ -33,6 +33,7 @@ from typing import Any
 
 from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_cause
 from adademo_lerobot.core.interrupts import command_starts, raise_keyboard_interrupt
+from adademo_lerobot.core.plugins import import_plugins
 from adademo_lerobot.loop.configs import LEROBOT_CHOICE
 
 
@@ -309,6 +310,8 @@ def run_command(
                 signal.signal(sig, raise_keyboard_interrupt)
     try:
         try:
+            # Before any flag is read: a plugin's strategy, suite or expert parses as a built-in one.
+            import_plugins(sys.path)
             check_moved_flags(config_cls, argv)
             cfg = one_line_usage_errors(parse_light, config_cls, argv, lerobot_config is not None)
             if hasattr(cfg, "validate"):
