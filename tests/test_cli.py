@@ -4,6 +4,7 @@ as LeRobot's configs, from the same flags and recipe."""
 from pathlib import Path
 
 import pytest
+from conftest import run_cli
 from lerobot.configs.policies import PreTrainedConfig
 
 from adademo_lerobot.core.errors import AdaDemoError
@@ -203,3 +204,31 @@ def test_a_command_after_a_stopped_one_in_the_same_process_still_stops(monkeypat
             signal.signal(sig, handler)
     assert finished == []
     assert capsys.readouterr().err.count("interrupted: rerun the same command to resume") == 2
+
+
+@pytest.mark.parametrize(
+    "command, args, message",
+    [
+        ("adademo-train", ["--dataset.root=ROOT/ds"], "error: --dataset.repo_id is required"),
+        (
+            "adademo-run",
+            ["--config_path=ROOT/no_such.yaml", "--run_dir=ROOT/run"],
+            "error: --config_path=ROOT/no_such.yaml: no such file; give a recipe's YAML file",
+        ),
+        (
+            "adademo-run",
+            ["--config_path=ROOT", "--run_dir=ROOT/run"],
+            "error: --config_path=ROOT: a folder; give a recipe's YAML file",
+        ),
+    ],
+)
+def test_a_missing_setting_or_recipe_is_named_as_the_flag_to_give(command, args, message, tmp_path):
+    """Not draccus' "`dataset`: Missing required field(s) `repo_id` for DatasetConfig" or an OS error: the flag."""
+    proc = run_cli(command, *(a.replace("ROOT", str(tmp_path)) for a in args), check=False)
+    lines = proc.stderr.strip().splitlines()
+    assert (
+        proc.returncode == 2
+        and len(lines) == 1
+        and lines[0].startswith(message.replace("ROOT", str(tmp_path)))
+    )
+    assert sorted(tmp_path.iterdir()) == []  # nothing written

@@ -20,6 +20,7 @@ import importlib
 import json
 import logging
 import os
+import re
 import signal
 import sys
 import tempfile
@@ -243,6 +244,32 @@ def check_moved_flags(config_cls: type, argv: list[str]) -> None:
             raise AdaDemoError(f"--{old} moved: use --{new}")
 
 
+MISSING_FIELDS = re.compile(
+    r"^(?:`(?P<path>[\w.]+)`: )?Missing required field\(s\) (?P<fields>`.+`) for \w+$"
+)
+
+
+def in_flags(message: str) -> str:
+    """draccus' "`dataset`: Missing required field(s) `repo_id` for DatasetConfig" as the flags to give
+    ("--dataset.repo_id is required"); any other message as it is."""
+    match = MISSING_FIELDS.match(message)
+    if match is None:
+        return message
+    prefix = f"{match['path']}." if match["path"] else ""
+    flags = [f"--{prefix}{name}" for name in re.findall(r"`(\w+)`", match["fields"])]
+    return f"{', '.join(flags)} {'is' if len(flags) == 1 else 'are'} required"
+
+
+def check_config_path(argv: list[str]) -> None:
+    """A recipe that is not there is refused in one line that names the flag (not an OS error from deep in draccus)."""
+    config_path, _ = _pop_arg("config_path", argv)
+    if config_path is not None and not Path(config_path).is_file():
+        what = "a folder" if Path(config_path).is_dir() else "no such file"
+        raise AdaDemoError(
+            f"--config_path={config_path}: {what}; give a recipe's YAML file (e.g. recipes/quickstart.yaml)"
+        )
+
+
 def one_line_usage_errors(parse: Callable, *args) -> Any:
     """`parse(*args)`, with argparse's usage error (an unknown flag, an invalid choice: usage text, then
     `prog: error: ...`, exit 2) turned into our one `error:` line. Help and anything else pass through."""
@@ -313,6 +340,7 @@ def run_command(
             # Before any flag is read: a plugin's strategy, suite or expert parses as a built-in one.
             import_plugins(sys.path)
             check_moved_flags(config_cls, argv)
+            check_config_path(argv)
             cfg = one_line_usage_errors(parse_light, config_cls, argv, lerobot_config is not None)
             if hasattr(cfg, "validate"):
                 cfg.validate()
@@ -337,7 +365,7 @@ def run_command(
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
     except (draccus.utils.ParsingError, draccus.utils.DecodingError) as err:
-        print(f"error: {' '.join(str(err).split())}", file=sys.stderr)
+        print(f"error: {in_flags(' '.join(str(err).split()))}", file=sys.stderr)
         sys.exit(2)
     except FileNotFoundError as err:
         print(f"error: {err}", file=sys.stderr)
