@@ -32,6 +32,8 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     costed_split       costed_probe + --strategy.split_episodes=true (the round's budget, rollouts included, split
                        across the tasks by expected failure rate instead of evaluating the weakest task first)
     costed_split_o9    costed_split + --strategy.optimism=0.9 (five straight successes close a task, not three)
+    costed_split_knn   costed_split + --strategy.rank_states=knn (rollouts and fresh-state demonstrations at the
+                       candidate states a k-NN vote over every outcome so far predicts likeliest to fail)
     costed_probe_keep  costed_probe + --keep_successes=true --train.autonomous_weight=1 (its successful
                        rollouts kept as data, each drawn as a demonstration)
 
@@ -151,6 +153,16 @@ ALL_ARMS = {
         "--strategy.split_episodes=true",
         "--strategy.optimism=0.9",
     ],
+    # costed_split with failure prediction: evaluated states and fresh-state demonstrations are the candidates a k-NN
+    # vote predicts likeliest to fail (issue 35's "demonstrate at the predicted failures with no rollout").
+    "costed_split_knn": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        "--strategy.rollout_cost=1",
+        "--strategy.probe_unsure=true",
+        "--strategy.split_episodes=true",
+        "--strategy.rank_states=knn",
+    ],
     # costed_probe keeping its successful rollouts as data (no episode it did not run), each drawn as a
     # demonstration of its task: it runs ~7 rollouts per task in three rounds (benchmarks/results/mt10_cost.md), so
     # a strong task's few kept successes cannot take the weak tasks' share of training.
@@ -194,6 +206,7 @@ LABELS = {
     "costed_probe_keep": "costed_probe keeping its successful rollouts (each as a demonstration)",
     "costed_split": "costed_probe splitting the round's episodes by expected failure",
     "costed_split_o9": "costed_split closing a task after five straight successes (optimism 0.9)",
+    "costed_split_knn": "costed_split at the states a k-NN vote predicts likeliest to fail",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
