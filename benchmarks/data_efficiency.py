@@ -569,6 +569,9 @@ TITLES = {
     "corrections": "Corrections from the point of failure on MetaWorld: takeover arms against Uniform and budgeted",
     "mt10": "Data efficiency on MetaWorld MT10: Uniform, AdaDemo, budgeted, budgeted + takeover corrections",
     "mt10_cost": "MetaWorld MT10, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
+    # MT10 on the Intel Xeon, whose round 0 differs from the EPYCs' (benchmarks/results/kernel_reproducibility.md):
+    # costed_split with failure prediction (costed_split_knn) against a Uniform run of the same machine, per seed.
+    "mt10_cost_xeon": "MetaWorld MT10 on an Intel Xeon, paying for rollouts: Uniform and costed_split_knn",
     # The issue's second table: the same arms on the hard 8 (`recipes/budgeted.yaml`), 3 seeds, per-seed test states.
     "hard8_cost": "The hard 8 of MetaWorld, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
     # The paper's Adroit table (`recipes/adroit_table.yaml`): the planner for hammer and pen, scripted door/relocate.
