@@ -34,6 +34,8 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     costed_split_o9    costed_split + --strategy.optimism=0.9 (five straight successes close a task, not three)
     costed_split_knn   costed_split + --strategy.rank_states=knn (rollouts and fresh-state demonstrations at the
                        candidate states a k-NN vote over every outcome so far predicts likeliest to fail)
+    costed_split_knn_fresh  costed_split + --strategy.rank_states=knn_fresh (only the fresh-state demonstrations
+                       ranked; evaluations at random states keep the posterior unbiased)
     costed_probe_keep  costed_probe + --keep_successes=true --train.autonomous_weight=1 (its successful
                        rollouts kept as data, each drawn as a demonstration)
 
@@ -163,6 +165,16 @@ ALL_ARMS = {
         "--strategy.split_episodes=true",
         "--strategy.rank_states=knn",
     ],
+    # The same ranking for the fresh-state demonstrations only: the evaluated states stay random, so the posterior
+    # that splits the budget is not inflated by ranked (likelier-failing) states.
+    "costed_split_knn_fresh": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        "--strategy.rollout_cost=1",
+        "--strategy.probe_unsure=true",
+        "--strategy.split_episodes=true",
+        "--strategy.rank_states=knn_fresh",
+    ],
     # costed_probe keeping its successful rollouts as data (no episode it did not run), each drawn as a
     # demonstration of its task: it runs ~7 rollouts per task in three rounds (benchmarks/results/mt10_cost.md), so
     # a strong task's few kept successes cannot take the weak tasks' share of training.
@@ -207,6 +219,7 @@ LABELS = {
     "costed_split": "costed_probe splitting the round's episodes by expected failure",
     "costed_split_o9": "costed_split closing a task after five straight successes (optimism 0.9)",
     "costed_split_knn": "costed_split at the states a k-NN vote predicts likeliest to fail",
+    "costed_split_knn_fresh": "costed_split demonstrating at the fresh states a k-NN vote predicts likeliest to fail",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
@@ -571,7 +584,7 @@ TITLES = {
     "mt10_cost": "MetaWorld MT10, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
     # MT10 on the Intel Xeon, whose round 0 differs from the EPYCs' (benchmarks/results/kernel_reproducibility.md):
     # costed_split with failure prediction (costed_split_knn) against a Uniform run of the same machine, per seed.
-    "mt10_cost_xeon": "MetaWorld MT10 on an Intel Xeon, paying for rollouts: Uniform and costed_split_knn",
+    "mt10_cost_xeon": "MetaWorld MT10 on an Intel Xeon, paying for rollouts: Uniform and the k-NN arms",
     # The issue's second table: the same arms on the hard 8 (`recipes/budgeted.yaml`), 3 seeds, per-seed test states.
     "hard8_cost": "The hard 8 of MetaWorld, paying for rollouts: Uniform, task_only, budgeted and the rollout-cost arms",
     # The paper's Adroit table (`recipes/adroit_table.yaml`): the planner for hammer and pen, scripted door/relocate.

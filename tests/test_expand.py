@@ -95,12 +95,15 @@ def test_uniform_adds_exactly_n_per_task_from_fresh_states(dataset):
 
 
 @pytest.mark.parametrize(
-    "option", ["--strategy.rank_states=knn", "--strategy.split_episodes=true"], ids=["knn", "split"]
+    "option",
+    ["--strategy.rank_states=knn", "--strategy.rank_states=knn_fresh", "--strategy.split_episodes=true"],
+    ids=["knn", "knn_fresh", "split"],
 )
 def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset, ckpt, option):
-    """Round 2 ranks its states by the outcomes of round 1 (k-NN), or splits its budget by the posterior they
-    give: two rounds, each within its budget, every demo at a state the policy failed or counted as a fresh one
-    (no rollout), and the journaled evaluations are exactly the ledger's rollouts."""
+    """Round 2 ranks its states by the outcomes of round 1 (k-NN: evaluated and fresh states, or with knn_fresh the
+    fresh ones only), or splits its budget by the posterior they give: two rounds, each within its budget, every
+    demo at a state the policy failed or counted as a fresh one (no rollout), and the journaled evaluations are
+    exactly the ledger's rollouts."""
     for round_index in (1, 2):
         expand(
             dataset,
@@ -121,6 +124,15 @@ def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset,
         demos = set(zip(new.task, new["adademo/seed"], strict=True))
         assert demos & evaluated <= failed
         assert len(demos - evaluated) == sum(r["extra"]["fresh_demos"] for r in ledger)
+        if option != "--strategy.rank_states=knn":  # random evaluated states: the posterior's unbiased sample
+            for r in ledger:
+                seeds = [
+                    expansion_state_seed(0, round_index, r["task"], k) for k in range(r["eval_episodes"])
+                ]
+                assert {s for t, s in evaluated if t == r["task"]} == set(seeds)
+                fresh = {s for t, s in demos - evaluated if t == r["task"]}
+                draws = r["extra"]["fresh_attempts"] + (8 if "knn_fresh" in option else 0)  # 8 candidates
+                assert fresh <= {fresh_state_seed(0, round_index, r["task"], d) for d in range(draws)}
 
 
 @pytest.mark.slow

@@ -84,7 +84,8 @@ class BudgetedConfig(StrategyConfig):
     rollout_cost: float | None = None
     # With a rollout cost: how many demonstrations from random states one at a failed state is worth.
     failure_worth: float = DEFAULT_FAILURE_WORTH
-    # With a rollout cost: `random` states, or `knn`: the states predicted likeliest to fail first.
+    # With a rollout cost: `random` states, or `knn`: the states predicted likeliest to fail first (evaluated and
+    # demonstrated from), or `knn_fresh`: only the fresh-state demonstrations' (evaluations stay random).
     rank_states: str = "random"
     # With a rollout cost: probe a task with single rollouts before leaving it without fresh demonstrations, while
     # its failure rate may still be 1 / failure_worth or more (the posterior's 80th percentile).
@@ -118,7 +119,7 @@ class BudgetedConfig(StrategyConfig):
         # ranking needs initial states a simulator samples.
         if self.rank_states == "random":
             return None
-        return "--strategy.rank_states=knn ranks initial states a simulator samples"
+        return f"--strategy.rank_states={self.rank_states} ranks initial states a simulator samples"
 
     def build(self, round_in_run: int) -> BudgetedStrategy:
         cap = self.max_demos_per_task.at(round_in_run)

@@ -37,7 +37,12 @@ is worth its rollouts:
   peg-insert-side-v3 took 83 rollouts and 33 demonstrations while pick-place-v3 at 72 % got one demonstration);
 - `--strategy.rank_states=knn` takes, for evaluation and for those fresh demonstrations, the candidate states a
   k-nearest-neighbour vote over every outcome seen so far (earlier rounds and this one) predicts most likely to
-  fail, instead of the next random ones: demonstrations at predicted failures without a rollout.
+  fail, instead of the next random ones: demonstrations at predicted failures without a rollout. The ranked states
+  fail more often than the task's states do, and the posterior counts their outcomes as random draws, so it
+  overestimates a ranked task's failure rate (MT10: pick-place-v3 took 39 rollouts, benchmarks/results/
+  mt10_cost_xeon.md). `--strategy.rank_states=knn_fresh` ranks only the fresh-state demonstrations (the
+  likeliest failure of the next 8 fresh states, by the vote over every evaluated outcome) and evaluates random
+  states, so the posterior stays an estimate of the task's failure rate.
 
 Every decision depends only on journaled outcomes, so an interrupted round resumes to the same result. Without the
 k-NN ranking the loop asks a round only for policy episodes and demonstrations (`algorithm.InnerLoop`; a seed never
@@ -65,7 +70,7 @@ if TYPE_CHECKING:
     from adademo_lerobot.strategies.algorithm import InnerLoop
     from adademo_lerobot.strategies.round_context import RoundContext
 
-RANKINGS = ("random", "knn")
+RANKINGS = ("random", "knn", "knn_fresh")
 DEFAULT_FAILURE_WORTH = 3.0  # W: the paper reaches Uniform's result with about a third of the data
 DEFAULT_OPTIMISM = 0.8  # the posterior quantile of the failure rate that opens, closes and orders the tasks
 NEIGHBOURS = 5
@@ -146,7 +151,8 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
             "rollout_cost": c,
             "fresh_demos": 0,
         }
-    rankers = {t: FailureRanker(ctx, t) for t in tasks} if strategy.rank_states == "knn" else {}
+    rankers = {t: FailureRanker(ctx, t) for t in tasks} if strategy.rank_states != "random" else {}
+    ranked_evaluations = strategy.rank_states == "knn"
     drawn = dict.fromkeys(tasks, 0)  # candidate states drawn so far (each is evaluated at most once)
     pool: dict[str, list[int]] = {t: [] for t in tasks}  # drawn, not yet evaluated
 
@@ -161,8 +167,8 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
             pool[t].append(expansion_state_seed(ctx.seed, ctx.round_index, t, drawn[t]))
             drawn[t] += 1
 
-    def next_states(t: str, n: int) -> list[int]:
-        if t not in rankers:
+    def next_states(t: str, n: int, ranked: bool) -> list[int]:
+        if not ranked:
             seeds = [expansion_state_seed(ctx.seed, ctx.round_index, t, drawn[t] + j) for j in range(n)]
             drawn[t] += n
             return seeds
@@ -173,11 +179,24 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
         pool[t] = [s for s in pool[t] if s not in chosen]
         return chosen
 
+    # knn_fresh: the fresh states drawn and not yet demonstrated from, per task
+    fresh_pool: dict[str, list[int]] = {t: [] for t in tasks}
+    fresh_drawn = dict.fromkeys(tasks, 0)
+
+    def likeliest_failing_fresh_state(t: str) -> int:
+        while len(fresh_pool[t]) < CANDIDATES:
+            fresh_pool[t].append(fresh_state_seed(ctx.seed, ctx.round_index, t, fresh_drawn[t]))
+            fresh_drawn[t] += 1
+        scores = rankers[t].scores(fresh_pool[t])
+        return fresh_pool[t].pop(0 if scores is None else int(np.argmax(scores)))  # ties: the earliest drawn
+
     def demonstrate_from_fresh_state(t: str) -> None:
         """One expert attempt (paid whether kept or not) from the task's next fresh state, or with the k-NN from
         the candidate predicted likeliest to fail."""
-        if t in rankers:
-            seed = next_states(t, 1)[0]
+        if ranked_evaluations:
+            seed = next_states(t, 1, ranked=True)[0]
+        elif t in rankers:
+            seed = likeliest_failing_fresh_state(t)
         else:
             seed = fresh_state_seed(ctx.seed, ctx.round_index, t, fresh_draws[t])
         fresh_draws[t] += 1
@@ -194,7 +213,7 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
             cap - record.demos_added,
             strategy.max_eval_episodes_per_task - record.eval_episodes,
         )
-        outcomes = ctx.evaluate(task, next_states(task, n))
+        outcomes = ctx.evaluate(task, next_states(task, n, ranked=ranked_evaluations))
         ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
         posterior[task] = count_outcomes(ctx, task, record, outcomes, posterior[task], ctx.collect_demo)
         for outcome in outcomes if task in rankers else ():
