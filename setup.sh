@@ -17,6 +17,8 @@ EXTRAS="test,ray,robot,so101"
 # them is in the lock.
 EDITABLES=(-e ".[$EXTRAS]")
 for plugin in plugins/*/ examples/*/; do EDITABLES+=(-e "$plugin"); done
+# What pip freeze lists that the lock does not hold: pip itself, this checkout and the plugin/example distributions.
+NOT_LOCKED='^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example|adademo[-_]lerobot[-_]example)'
 # This machine's pip configuration may name local package folders that do not exist; pip warns about each.
 pip_quiet() { "$@" 2> >(grep -v "^WARNING: Location 'file://" >&2); }
 
@@ -59,7 +61,7 @@ install_system_packages() {
 
 lock_lines() { grep -v -E '^\s*(#|$)' "$LOCK" | sed 's/\s*#.*//' | tr '[:upper:]_' '[:lower:]-' | sort; }
 installed_lines() {
-  "$VENV/bin/python" -m pip freeze --all --exclude-editable 2>/dev/null | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example|adademo[-_]lerobot[-_]example)' \
+  "$VENV/bin/python" -m pip freeze --all --exclude-editable 2>/dev/null | grep -v -E "$NOT_LOCKED" \
     | tr '[:upper:]_' '[:lower:]-' | sort
 }
 
@@ -109,7 +111,7 @@ refresh_lock() {
     echo "# The whole resolved package set for adademo-lerobot (with extras [$EXTRAS]); setup.sh and CI install exactly this."
     echo "# Resolved $(date -u +%Y-%m-%d) on $(uname -m) Linux, $("$tmp/venv/bin/python" -V). Refresh deliberately:"
     echo "# bash setup.sh lock, then check the new set with bash setup.sh test and bash setup.sh quickstart (README)."
-    "$tmp/venv/bin/python" -m pip freeze --all --exclude-editable | grep -v -E '^(pip==|adademo-lerobot[ =@]|lerobot[-_](env|robot|teleoperator)[-_]adademo|lerobot[-_]env[-_]example|adademo[-_]lerobot[-_]example)'
+    "$tmp/venv/bin/python" -m pip freeze --all --exclude-editable | grep -v -E "$NOT_LOCKED"
   } > "$LOCK.new"
   if [ -f "$LOCK" ]; then diff <(grep -v '^#' "$LOCK") <(grep -v '^#' "$LOCK.new") || true; fi
   mv "$LOCK.new" "$LOCK"

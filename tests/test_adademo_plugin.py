@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import assert_cli_error, expand, file_digests
+from conftest import assert_cli_error, expand, file_digests, stock_episodes
 
 from adademo_lerobot.core.plugins import plugin_names
 from adademo_lerobot.core.seeds import expansion_state_seed
@@ -83,9 +83,7 @@ def test_two_rounds_of_a_plugin_strategy_demonstrate_at_exactly_its_failed_state
                 ep["adademo/initial_state"], suite.sample_initial_state(ep.task, ep["adademo/seed"])
             )
     assert len(eps) > 6  # the weak policy fails somewhere in two rounds: the plugin did add demonstrations
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    assert LeRobotDataset("local/demo", root=dataset).num_episodes == len(eps)
+    assert stock_episodes(dataset) == len(eps)
 
 
 def test_a_plugin_that_fails_to_import_is_one_error_line_naming_it(dataset, tmp_path, monkeypatch):

@@ -24,13 +24,11 @@ def plugin_names(path: list[str]) -> list[str]:
     metadata folders are read: listing every distribution's metadata would cost a tenth of a second."""
     names = set()
     for entry in path:
-        with contextlib.suppress(
-            OSError
-        ):  # an entry that is a zip, missing or unreadable holds no plugin here
+        # An entry that is a zip, missing or unreadable holds no plugin here.
+        with contextlib.suppress(OSError):
             for item in os.scandir(entry or "."):
-                if item.name.lower().startswith(PLUGIN_PREFIX) and item.name.endswith(
-                    (".dist-info", ".egg-info")
-                ):
+                metadata = item.name.endswith((".dist-info", ".egg-info"))
+                if metadata and item.name.lower().startswith(PLUGIN_PREFIX):
                     name = importlib.metadata.Distribution.at(item.path).metadata.get("Name") or ""
                     names.add(name.replace("-", "_"))
     return sorted(n for n in names if n.startswith(PLUGIN_PREFIX))

@@ -181,12 +181,11 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
 
     # knn_fresh: the fresh states drawn and not yet demonstrated from, per task
     fresh_pool: dict[str, list[int]] = {t: [] for t in tasks}
-    fresh_drawn = dict.fromkeys(tasks, 0)
 
     def likeliest_failing_fresh_state(t: str) -> int:
-        while len(fresh_pool[t]) < CANDIDATES:
-            fresh_pool[t].append(fresh_state_seed(ctx.seed, ctx.round_index, t, fresh_drawn[t]))
-            fresh_drawn[t] += 1
+        while len(fresh_pool[t]) < CANDIDATES:  # drawn so far: one per attempt made, plus the pool
+            draw = fresh_draws[t] + len(fresh_pool[t])
+            fresh_pool[t].append(fresh_state_seed(ctx.seed, ctx.round_index, t, draw))
         scores = rankers[t].scores(fresh_pool[t])
         return fresh_pool[t].pop(0 if scores is None else int(np.argmax(scores)))  # ties: the earliest drawn
 

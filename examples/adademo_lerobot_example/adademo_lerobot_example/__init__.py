@@ -52,9 +52,8 @@ class EveryFailure:
                 for k in range(self.rollouts_per_task)
             ]
             outcomes = ctx.evaluate(task, seeds)
-            ctx.ask_expert(
-                task, [o.seed for o in outcomes if not o.success]
-            )  # experts may start on all at once
+            # The experts may start on all the failed states at once (Ray workers); a person does one at a time.
+            ctx.ask_expert(task, [o.seed for o in outcomes if not o.success])
             for outcome in outcomes:
                 record.eval_episodes += 1
                 if outcome.success:
