@@ -36,6 +36,8 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
                        candidate states a k-NN vote over every outcome so far predicts likeliest to fail)
     costed_split_knn_fresh  costed_split + --strategy.rank_states=knn_fresh (only the fresh-state demonstrations
                        ranked; evaluations at random states keep the posterior unbiased)
+    costed_split_takeover  costed_split + --demo_start=takeover (each failed rollout corrected from where it
+                       went wrong; the rollout and its correction are one scene reset)
     costed_probe_keep  costed_probe + --keep_successes=true --train.autonomous_weight=1 (its successful
                        rollouts kept as data, each drawn as a demonstration)
 
@@ -175,6 +177,18 @@ ALL_ARMS = {
         "--strategy.split_episodes=true",
         "--strategy.rank_states=knn_fresh",
     ],
+    # costed_split where each failed rollout ends in a correction from where it went wrong, in the same scene: the
+    # rollout and the correction are one episode (issue 35's "no wasted rollout"), so a found failure costs one reset,
+    # not two; the expert's one attempt there, then (if it fails) a demonstration from the initial state.
+    "costed_split_takeover": [
+        "--strategy.type=budgeted",
+        "--train.sampler=trajectory",
+        "--strategy.rollout_cost=1",
+        "--strategy.probe_unsure=true",
+        "--strategy.split_episodes=true",
+        *TAKEOVER,
+        *DISAGREEMENT,
+    ],
     # costed_probe keeping its successful rollouts as data (no episode it did not run), each drawn as a
     # demonstration of its task: it runs ~7 rollouts per task in three rounds (benchmarks/results/mt10_cost.md), so
     # a strong task's few kept successes cannot take the weak tasks' share of training.
@@ -220,6 +234,7 @@ LABELS = {
     "costed_split_o9": "costed_split closing a task after five straight successes (optimism 0.9)",
     "costed_split_knn": "costed_split at the states a k-NN vote predicts likeliest to fail",
     "costed_split_knn_fresh": "costed_split demonstrating at the fresh states a k-NN vote predicts likeliest to fail",
+    "costed_split_takeover": "costed_split correcting each failed rollout where it went wrong (one episode)",
     "budgeted_takeover": "Budgeted + takeover corrections (disagreement)",
     "adademo_takeover": "AdaDemo + takeover corrections (disagreement)",
     "budgeted_takeover_backoff": "Budgeted + takeover corrections (backoff)",
@@ -595,6 +610,7 @@ TITLES = {
     "adroit_ensembled": "Adroit, ACT acting by temporal ensembling: Uniform, AdaDemo, budgeted, costed_split",
 }
 TAKEOVER_ARMS = {
+    "costed_split_takeover",
     "budgeted_takeover",
     "adademo_takeover",
     "budgeted_takeover_backoff",

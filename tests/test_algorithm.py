@@ -310,6 +310,9 @@ class BudgetRound:
     seed: int = 0
     round_index: int = 1
     posterior_decay: float = 0.5
+    corrections: bool = (
+        False  # --demo_start=takeover: a demonstration at a failed state continues its rollout
+    )
 
     def __post_init__(self):
         self.tasks = list(self.outcomes)
@@ -360,6 +363,7 @@ class BudgetRound:
             record.expert_failures += 1
             return False
         record.demos_added += 1
+        record.corrections += self.corrections
         return True
 
     def progress(self, task, record):
@@ -700,6 +704,34 @@ def test_split_episodes_shares_the_round_by_expected_failure_instead_of_feeding_
     assert split["solved"].demos_added == 0 and split["solved"].eval_episodes == 3  # closed as with greedy
     # Evaluating pays on the weakest task: every one of its demonstrations is at a failure.
     assert split["weak"].demos_added == split["weak"].failures
+
+
+def test_a_correction_is_paid_by_the_rollout_it_continues():
+    """With --demo_start=takeover a demonstration at a failed state continues that rollout in the same scene (one
+    episode, `core/costs.py`): the round pays its budget in episodes, so the same budget buys each weak task more
+    of its failed states than when every demonstration is an episode of its own."""
+    outcomes = {"solved": "S" * 100, "weak": "FSFFSFFSFFSFFSFF" * 6, "mid": "SFSSF" * 20}
+
+    def run(corrections: bool):
+        ctx = BudgetRound(
+            dict(outcomes), budget=30, batch_size=4, max_demos_per_task=12, corrections=corrections
+        )
+        strategy = ctx.strategy(rollout_cost=1.0, probe_unsure=True, split_episodes=True)
+        records = {r.task: r for r in strategy.expand(ctx)}
+        episodes = sum(
+            r.demos_added - r.corrections + r.expert_failures + r.eval_episodes for r in records.values()
+        )
+        assert episodes == 30 and all(r.extra["round_cost"] == 30 for r in records.values())
+        for task, r in records.items():
+            assert all(ctx.outcomes[task][ctx._position[task][s]] == "F" for s in ctx.collected[task])
+            assert r.corrections == (len(ctx.collected[task]) if corrections else 0)
+        return records
+
+    separate, continued = run(corrections=False), run(corrections=True)
+    assert sum(r.corrections for r in continued.values()) > 0
+    assert continued["weak"].corrections > separate["weak"].demos_added  # more of its failed states
+    assert sum(r.demos_added for r in continued.values()) > sum(r.demos_added for r in separate.values())
+    assert continued["solved"].demos_added == 0
 
 
 def test_optimism_sets_how_many_straight_successes_close_a_task():

@@ -96,14 +96,19 @@ def test_uniform_adds_exactly_n_per_task_from_fresh_states(dataset):
 
 @pytest.mark.parametrize(
     "option",
-    ["--strategy.rank_states=knn", "--strategy.rank_states=knn_fresh", "--strategy.split_episodes=true"],
-    ids=["knn", "knn_fresh", "split"],
+    [
+        "--strategy.rank_states=knn",
+        "--strategy.rank_states=knn_fresh",
+        "--strategy.split_episodes=true --demo_start=takeover --takeover.fallback=initial",
+    ],
+    ids=["knn", "knn_fresh", "split_takeover"],
 )
 def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset, ckpt, option):
     """Round 2 ranks its states by the outcomes of round 1 (k-NN: evaluated and fresh states, or with knn_fresh the
-    fresh ones only), or splits its budget by the posterior they give: two rounds, each within its budget, every
-    demo at a state the policy failed or counted as a fresh one (no rollout), and the journaled evaluations are
-    exactly the ledger's rollouts."""
+    fresh ones only), or splits its budget by the posterior they give: two rounds, each within its budget counted
+    in episodes (a correction is part of the rollout it corrects), every demo at a state the policy failed or
+    counted as a fresh one (no rollout), and the journaled evaluations are exactly the ledger's rollouts."""
+    corrections = 0
     for round_index in (1, 2):
         expand(
             dataset,
@@ -111,11 +116,16 @@ def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset,
             "--strategy.type=budgeted",
             "--strategy.budget=6",
             "--strategy.rollout_cost=0.5",
-            option,
+            *option.split(),
             "--eval.batch_size=2",
         )
         _, new, ledger = check_ledger_agrees(dataset, round_index)
-        cost = sum(r["demos_added"] + r["expert_failures"] + 0.5 * r["eval_episodes"] for r in ledger)
+        corrections += int((new["adademo/source"] == "correction").sum())
+        assert sum(r["corrections"] for r in ledger) == (new["adademo/source"] == "correction").sum()
+        cost = sum(
+            r["demos_added"] - r["corrections"] + r["expert_failures"] + 0.5 * r["eval_episodes"]
+            for r in ledger
+        )
         assert 0 < cost <= 6 and all(r["extra"]["round_cost"] == cost for r in ledger)
         evaluations = [e for e in read_round_evaluations(dataset, round_index) if e["type"] == "eval"]
         assert len(evaluations) == sum(r["eval_episodes"] for r in ledger)
@@ -133,6 +143,7 @@ def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset,
                 fresh = {s for t, s in demos - evaluated if t == r["task"]}
                 draws = r["extra"]["fresh_attempts"] + (8 if "knn_fresh" in option else 0)  # 8 candidates
                 assert fresh <= {fresh_state_seed(0, round_index, r["task"], d) for d in range(draws)}
+    assert (corrections > 0) == ("takeover" in option)  # the episode count above was tested with corrections
 
 
 @pytest.mark.slow

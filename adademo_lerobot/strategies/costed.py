@@ -1,8 +1,9 @@
 """The budgeted strategy when policy rollouts cost something (`--strategy.rollout_cost=c`, in demonstrations).
 
 On a robot every episode needs the scene reset, a policy rollout as much as a demonstration. With a rollout cost,
-the round's budget B pays for both: expert attempts (kept or failed) cost 1, rollouts c, and the round stops when
-the next rollout and the demonstration it may lead to would overspend. Evaluation goes only where a found failure
+the round's budget B pays for both: expert attempts (kept or failed) cost 1, rollouts c (a correction,
+`--demo_start=takeover`, continues its rollout's episode: no second cost), and the round stops when the next
+rollout and the demonstration it may lead to would overspend. Evaluation goes only where a found failure
 is worth its rollouts:
 
 - each task's failure rate p has a Beta posterior (as the budgeted strategy keeps it: the earlier rounds'
@@ -79,8 +80,11 @@ CANDIDATES = 8  # candidate states drawn per state evaluated, for ranking
 
 
 def task_cost(record: TaskRoundRecord, rollout_cost: float) -> float:
-    """What a task has spent this round, in demonstrations: every expert attempt, and every rollout at its cost."""
-    return record.demos_added + record.expert_failures + rollout_cost * record.eval_episodes
+    """What a task has spent this round, in demonstrations: every expert attempt, and every rollout at its cost.
+    A correction (`--demo_start=takeover`) continues the rollout it corrects, in the same scene: its rollout paid
+    for it (`core/costs.py`); a demonstration from the initial state after a failed takeover is one more."""
+    expert_attempts = record.demos_added - record.corrections + record.expert_failures
+    return expert_attempts + rollout_cost * record.eval_episodes
 
 
 def round_cost(records: dict[str, TaskRoundRecord], rollout_cost: float) -> float:
