@@ -310,9 +310,9 @@ class BudgetRound:
     seed: int = 0
     round_index: int = 1
     posterior_decay: float = 0.5
-    corrections: bool = (
-        False  # --demo_start=takeover: a demonstration at a failed state continues its rollout
-    )
+    # --demo_start=takeover: a failure is answered by a correction that continues its rollout; where the expert
+    # fails (`expert_fails_on`) it is a takeover failure, then a demonstration from the initial state.
+    corrects_failures: bool = False
 
     def __post_init__(self):
         self.tasks = list(self.outcomes)
@@ -359,11 +359,13 @@ class BudgetRound:
             record.demos_added += 1
             return True
         self.collected[task].append(seed)
-        if self._position[task][seed] in self.expert_fails_on.get(task, set()):
+        expert_fails = self._position[task][seed] in self.expert_fails_on.get(task, set())
+        if expert_fails and not self.corrects_failures:
             record.expert_failures += 1
             return False
         record.demos_added += 1
-        record.corrections += self.corrections
+        record.corrections += self.corrects_failures and not expert_fails
+        record.takeover_failures += expert_fails
         return True
 
     def progress(self, task, record):
@@ -706,32 +708,49 @@ def test_split_episodes_shares_the_round_by_expected_failure_instead_of_feeding_
     assert split["weak"].demos_added == split["weak"].failures
 
 
-def test_a_correction_is_paid_by_the_rollout_it_continues():
-    """With --demo_start=takeover a demonstration at a failed state continues that rollout in the same scene (one
-    episode, `core/costs.py`): the round pays its budget in episodes, so the same budget buys each weak task more
-    of its failed states than when every demonstration is an episode of its own."""
-    outcomes = {"solved": "S" * 100, "weak": "FSFFSFFSFFSFFSFF" * 6, "mid": "SFSSF" * 20}
+def test_a_correction_is_paid_by_the_rollout_it_continues_so_evaluating_pays_sooner():
+    """With --demo_start=takeover a failure's answer continues its rollout in the same scene (one episode,
+    `core/costs.py`): the round pays its budget in episodes, the weakest task gets more of its failed states, and a
+    task failing 40 % of the time is worth evaluating (its corrections cost nothing more: u >= c / W, not
+    c / (W - 1)) instead of getting fresh demonstrations; unless the expert fails from its takeover states, each
+    then a demonstration from the initial state that costs one more episode, as without corrections."""
+    outcomes = {
+        "solved": "S" * 100,
+        "weak": "FSFFSFFSFFSFFSFF" * 6,
+        "mid": "SFSSF" * 20,
+        "mid_x": "SFSSF" * 20,
+    }
 
-    def run(corrections: bool):
+    def run(corrects_failures: bool):
         ctx = BudgetRound(
-            dict(outcomes), budget=30, batch_size=4, max_demos_per_task=12, corrections=corrections
+            dict(outcomes),
+            budget=40,
+            batch_size=4,
+            max_demos_per_task=12,
+            corrects_failures=corrects_failures,
+            expert_fails_on={"mid_x": set(range(100))} if corrects_failures else {},
         )
         strategy = ctx.strategy(rollout_cost=1.0, probe_unsure=True, split_episodes=True)
         records = {r.task: r for r in strategy.expand(ctx)}
         episodes = sum(
             r.demos_added - r.corrections + r.expert_failures + r.eval_episodes for r in records.values()
         )
-        assert episodes == 30 and all(r.extra["round_cost"] == 30 for r in records.values())
+        assert episodes == 40 and all(r.extra["round_cost"] == 40 for r in records.values())
         for task, r in records.items():
             assert all(ctx.outcomes[task][ctx._position[task][s]] == "F" for s in ctx.collected[task])
-            assert r.corrections == (len(ctx.collected[task]) if corrections else 0)
-        return records
+            assert r.demos_added == len(ctx.collected[task]) + len(ctx.fresh[task])
+        return records, ctx.fresh
 
-    separate, continued = run(corrections=False), run(corrections=True)
-    assert sum(r.corrections for r in continued.values()) > 0
+    separate, fresh = run(corrects_failures=False)
+    continued, fresh_continued = run(corrects_failures=True)
+    assert sum(r.corrections for r in separate.values()) == 0
     assert continued["weak"].corrections > separate["weak"].demos_added  # more of its failed states
-    assert sum(r.demos_added for r in continued.values()) > sum(r.demos_added for r in separate.values())
-    assert continued["solved"].demos_added == 0
+    assert fresh["mid"] and not fresh_continued["mid"]  # evaluated instead: every demonstration a correction
+    assert continued["mid"].corrections == continued["mid"].demos_added > 0
+    assert continued["mid"].eval_episodes > separate["mid"].eval_episodes
+    assert continued["mid_x"].takeover_failures >= 1 and fresh_continued["mid_x"]  # back to fresh states
+    assert continued["mid_x"].corrections == 0
+    assert continued["solved"].demos_added == separate["solved"].demos_added == 0
 
 
 def test_optimism_sets_how_many_straight_successes_close_a_task():

@@ -235,6 +235,10 @@ class PersonRound(JournaledRound):
         self._corrections: dict[tuple[str, int], tuple[Demonstration | None, float]] = {}
         self._task: str | None = None  # the task whose scene is up
 
+    @property
+    def corrects_failures(self) -> bool:
+        return self.session.cfg.demo_start == "takeover"
+
     def _use(self, task: str) -> None:
         if task != self._task:
             self.session.select_task(task)

@@ -57,6 +57,11 @@ class InnerLoop(Protocol):
     def root(self) -> Path:
         """The dataset's folder (its earlier rounds' evaluations feed the success estimates)."""
 
+    @property
+    def corrects_failures(self) -> bool:
+        """A failure is answered by a correction that continues its rollout in the same scene
+        (`--demo_start=takeover`), not by a demonstration from the initial state."""
+
     def new_record(
         self,
         task: str,

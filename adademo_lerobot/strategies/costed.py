@@ -14,7 +14,13 @@ is worth its rollouts:
 - a task closes for evaluation once even u makes the expected rollout cost of its next failure, c / u, exceed what
   a demonstration at a failure is worth beyond one from a random state, W - 1 demonstrations (W =
   `--strategy.failure_worth`: the paper reaches Uniform's result with about a third of the data, W = 3). A task
-  that keeps succeeding closes after a rollout or two instead of being evaluated to the bound;
+  that keeps succeeding closes after a rollout or two instead of being evaluated to the bound. With corrections
+  (`--demo_start=takeover`) a failure's answer continues its rollout and costs no episode of its own unless the
+  expert fails from the takeover state (then it starts again from the initial state): a task is worth evaluating
+  while u >= c / (W - a), a the share of the task's takeovers this round the expert failed from (0 until one
+  fails; a = 1 without corrections gives c / (W - 1)). At c = 1 and W = 3 that is from 1/3 instead of 1/2, where
+  a rollout's expected correction is worth what a fresh demonstration is, and the rollout also informs the
+  posterior;
 - the open task with the highest u is evaluated next (its failures are the likeliest cheap, principle A wants
   demos there; a task not yet tried has u = 0.8 under Beta(1, 1), so it comes before every task whose u is lower,
   but a task that keeps failing stays above it and can take most of the round: `split_episodes` below), one
@@ -143,7 +149,6 @@ class PayingStrategy(Protocol):
 
 def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list[TaskRoundRecord]:
     tasks, cap, c = ctx.tasks, strategy.cap, strategy.rollout_cost
-    threshold = c / (strategy.failure_worth - 1)  # a task is worth evaluating while p >= c / (W - 1)
     posterior = {
         t: prior_from_earlier_rounds(ctx.root, ctx.round_index, t, strategy.posterior_decay) for t in tasks
     }
@@ -165,6 +170,22 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
 
         alpha, b = posterior[t]
         return float(beta.ppf(strategy.optimism, b, alpha))  # the failure rate's Beta(beta, alpha) quantile
+
+    def answer_cost(t: str) -> float:
+        """Expert episodes beyond the rollout that answering one of the task's failures costs: 1 (a demonstration
+        from the initial state), or with corrections the share of this round's takeovers the expert failed from
+        (each then starts again from the initial state), 0 until one fails."""
+        if not ctx.corrects_failures:
+            return 1.0
+        r = records[t]
+        requests = r.corrections + r.takeover_failures
+        return r.takeover_failures / requests if requests else 0.0
+
+    def worth_evaluating(t: str) -> bool:
+        """A rollout costs c and fails with probability u; its answer costs a more and is worth W demonstrations
+        from random states: worth it while u W >= c + u a, i.e. u >= c / (W - a) (c / (W - 1) without
+        corrections)."""
+        return optimistic_failure(t) >= c / (strategy.failure_worth - answer_cost(t))
 
     def refill(t: str) -> None:
         while len(pool[t]) < CANDIDATES * ctx.batch_size:
@@ -236,10 +257,9 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
             # rollouts that can still pay for the demonstration each may need
             affordable = int(left // (c + 1))
             worth = {
-                t: u
+                t: optimistic_failure(t)
                 for t in open_tasks
-                if records[t].eval_episodes < strategy.max_eval_episodes_per_task
-                and (u := optimistic_failure(t)) >= threshold
+                if records[t].eval_episodes < strategy.max_eval_episodes_per_task and worth_evaluating(t)
             }
             if worth and affordable >= 1:
                 task = max(worth, key=lambda t: (worth[t], -records[t].eval_episodes, -tasks.index(t)))
@@ -280,7 +300,7 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
                     continue
                 may_evaluate = r.eval_episodes < strategy.max_eval_episodes_per_task and affordable >= 1
                 u, p = optimistic_failure(t), failure_mean(posterior[t])
-                if may_evaluate and u >= threshold:
+                if may_evaluate and worth_evaluating(t):
                     action[t] = "evaluate"
                 elif strategy.failure_worth * p >= 1 and left >= 1:
                     action[t] = "fresh"
@@ -313,7 +333,7 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
             posterior=list(posterior[t]),
             posterior_success_mean=1 - failure_mean(posterior[t]),
             round_cost=spent,
-            closed_as_not_worth=optimistic_failure(t) < threshold,
+            closed_as_not_worth=not worth_evaluating(t),
             fresh_attempts=fresh_draws[t],
         )
     return [records[t] for t in tasks]

@@ -113,6 +113,10 @@ class RoundContext(JournaledRound):
         # A stopped run's shards its journal did not commit: never merged, collected again.
         shutil.rmtree(shard_folder(self.dataset.root, self.round_index), ignore_errors=True)
 
+    @property
+    def corrects_failures(self) -> bool:
+        return self.takeover is not None
+
     def resume_commits(self) -> None:
         """Before a round (re)starts: the shards a stopped run committed to the journal are merged (the round goes
         on from them), the others removed."""
