@@ -120,8 +120,9 @@ def test_rollout_cost_pays_for_rollouts_from_the_budget_over_two_rounds(dataset,
             "--eval.batch_size=2",
         )
         _, new, ledger = check_ledger_agrees(dataset, round_index)
-        corrections += int((new["adademo/source"] == "correction").sum())
-        assert sum(r["corrections"] for r in ledger) == (new["adademo/source"] == "correction").sum()
+        round_corrections = int((new["adademo/source"] == "correction").sum())
+        assert sum(r["corrections"] for r in ledger) == round_corrections
+        corrections += round_corrections
         cost = sum(
             r["demos_added"] - r["corrections"] + r["expert_failures"] + 0.5 * r["eval_episodes"]
             for r in ledger

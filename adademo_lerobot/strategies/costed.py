@@ -181,11 +181,11 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
         requests = r.corrections + r.takeover_failures
         return r.takeover_failures / requests if requests else 0.0
 
-    def worth_evaluating(t: str) -> bool:
+    def evaluation_threshold(t: str) -> float:
         """A rollout costs c and fails with probability u; its answer costs a more and is worth W demonstrations
         from random states: worth it while u W >= c + u a, i.e. u >= c / (W - a) (c / (W - 1) without
         corrections)."""
-        return optimistic_failure(t) >= c / (strategy.failure_worth - answer_cost(t))
+        return c / (strategy.failure_worth - answer_cost(t))
 
     def refill(t: str) -> None:
         while len(pool[t]) < CANDIDATES * ctx.batch_size:
@@ -257,9 +257,10 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
             # rollouts that can still pay for the demonstration each may need
             affordable = int(left // (c + 1))
             worth = {
-                t: optimistic_failure(t)
+                t: u
                 for t in open_tasks
-                if records[t].eval_episodes < strategy.max_eval_episodes_per_task and worth_evaluating(t)
+                if records[t].eval_episodes < strategy.max_eval_episodes_per_task
+                and (u := optimistic_failure(t)) >= evaluation_threshold(t)
             }
             if worth and affordable >= 1:
                 task = max(worth, key=lambda t: (worth[t], -records[t].eval_episodes, -tasks.index(t)))
@@ -300,7 +301,7 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
                     continue
                 may_evaluate = r.eval_episodes < strategy.max_eval_episodes_per_task and affordable >= 1
                 u, p = optimistic_failure(t), failure_mean(posterior[t])
-                if may_evaluate and worth_evaluating(t):
+                if may_evaluate and u >= evaluation_threshold(t):
                     action[t] = "evaluate"
                 elif strategy.failure_worth * p >= 1 and left >= 1:
                     action[t] = "fresh"
@@ -333,7 +334,7 @@ def expand_paying_for_rollouts(strategy: PayingStrategy, ctx: InnerLoop) -> list
             posterior=list(posterior[t]),
             posterior_success_mean=1 - failure_mean(posterior[t]),
             round_cost=spent,
-            closed_as_not_worth=not worth_evaluating(t),
+            closed_as_not_worth=optimistic_failure(t) < evaluation_threshold(t),
             fresh_attempts=fresh_draws[t],
         )
     return [records[t] for t in tasks]
