@@ -1,6 +1,7 @@
-"""A strategy from a package of its own (docs/extending.md, "Your own package"): examples/adademo_lerobot_example,
-installed as a user would (setup.sh installs it), is found by every command, runs rounds like a built-in strategy,
-and a plugin that fails to import is one `error:` line that names it."""
+"""A strategy and an expert from a package of their own (docs/extending.md, "Your own package"):
+examples/adademo_lerobot_example, installed as a user would (setup.sh installs it), is found by every command, its
+strategy runs rounds and its expert records demonstrations like built-in ones, and a plugin that fails to import is
+one `error:` line that names it."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import assert_cli_error, expand, file_digests, stock_episodes
+from conftest import assert_cli_error, expand, file_digests, run_cli, stock_episodes
 
+from adademo_lerobot.collectors.metaworld_scripted import scripted_policy
 from adademo_lerobot.core.plugins import plugin_names
 from adademo_lerobot.core.seeds import expansion_state_seed
 from adademo_lerobot.dataset.ledger import read_ledger, read_round_evaluations
@@ -39,7 +41,11 @@ ROLLOUTS = 4
 def test_the_docs_show_the_plugin_as_it_is():
     """docs/extending.md shows every file of the example whole, so that the docs alone make a plugin."""
     doc = (ROOT / "docs" / "extending.md").read_text()
-    for name, fence in (("pyproject.toml", "toml"), ("adademo_lerobot_example/__init__.py", "python")):
+    for name, fence in (
+        ("pyproject.toml", "toml"),
+        ("adademo_lerobot_example/__init__.py", "python"),
+        ("adademo_lerobot_example/smoothed.py", "python"),
+    ):
         assert f"```{fence}\n{(EXAMPLE / name).read_text()}```" in doc, name
 
 
@@ -84,6 +90,52 @@ def test_two_rounds_of_a_plugin_strategy_demonstrate_at_exactly_its_failed_state
             )
     assert len(eps) > 6  # the weak policy fails somewhere in two rounds: the plugin did add demonstrations
     assert stock_episodes(dataset) == len(eps)
+
+
+def test_a_plugin_expert_records_its_own_actions_and_refuses_a_bad_field(tmp_path):
+    """`--collector.type=smoothed` from the same package: every recorded action is the moving average of the
+    scripted expert's actions along the episode (replayed in the suite's env from the episode's initial state), the
+    episodes name it as their expert and stock LeRobot reads them; a weight outside [0, 1) is one `error:` line
+    with nothing written."""
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    root = tmp_path / "smoothed"
+    run_cli(
+        "adademo-collect", f"--suite.tasks={','.join(TASKS)}", "--episodes_per_task=2",
+        "--collector.type=smoothed", "--collector.smoothing=0.5", "--dataset.repo_id=local/smoothed",
+        f"--dataset.root={root}",
+    )  # fmt: skip
+    eps = read_episode_metadata(root)
+    assert list(eps.task) == [TASKS[0]] * 2 + [TASKS[1]] * 2
+    assert set(eps["adademo/collector"]) == {"smoothed-metaworld-scripted"}
+    data = pd.concat(pq.read_table(p).to_pandas() for p in sorted((root / "data").rglob("*.parquet")))
+    suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS)))
+    smoothed_away = 0.0  # how far the largest recorded action is from the scripted expert's own at that step
+    for index, ep in eps.iterrows():
+        recorded = np.stack(data[data.episode_index == index]["action"].to_numpy())
+        env = suite.make_env(ep.task, terminate_on_success=False)
+        obs, _ = env.reset(options={"initial_state": ep["adademo/initial_state"]})
+        scripted, previous = scripted_policy(ep.task), None
+        low, high = env.action_space.low, env.action_space.high
+        for action in recorded:
+            expert = np.asarray(scripted(obs), np.float64)
+            previous = expert if previous is None else 0.5 * previous + 0.5 * expert
+            # recorded as the env applied it: clipped to the action space, stored as float32
+            np.testing.assert_allclose(action, np.clip(previous, low, high), atol=1e-6)
+            smoothed_away = max(smoothed_away, float(np.abs(previous - expert).max()))
+            obs, *_ = env.step(previous)
+        env.close()
+    assert smoothed_away > 0.05  # the smoothing changed what the expert did
+    assert stock_episodes(root) == 4
+
+    bad = tmp_path / "bad"
+    assert_cli_error(
+        "adademo-collect", f"--suite.tasks={TASKS[0]}", "--collector.type=smoothed", "--collector.smoothing=1",
+        "--dataset.repo_id=local/bad", f"--dataset.root={bad}",
+        match="--collector.smoothing=1.0: give the previous action's weight in [0, 1)",
+    )  # fmt: skip
+    assert not bad.exists()
 
 
 def test_a_plugin_that_fails_to_import_is_one_error_line_naming_it(dataset, tmp_path, monkeypatch):

@@ -5,6 +5,7 @@ round."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import secrets
@@ -340,6 +341,29 @@ def test_fixed_set_evaluation_and_collection_are_the_same_with_any_number_of_wor
         assert list(ea["adademo/seed"]) == list(read_episode_metadata(roots[name])["adademo/seed"])
         fb = frames_by_episode(roots[name])
         assert fa.keys() == fb.keys() and all(np.array_equal(fa[k], fb[k]) for k in fa)
+
+
+def test_a_plugin_expert_records_the_same_demonstrations_on_ray_workers(ray_address, tmp_path):
+    """The workers import a plugin's expert when they get one (docs/extending.md): examples/adademo_lerobot_example's
+    `--collector.type=smoothed` gives the same episodes on two workers as in the driver's process."""
+    if importlib.util.find_spec("adademo_lerobot_example") is None:
+        if os.environ.get("CI") == "true":
+            pytest.fail("CI must run the plugin tests: examples/adademo_lerobot_example is not installed")
+        pytest.skip(
+            "the plugin example is not installed (pip install --no-deps -e examples/adademo_lerobot_example)"
+        )
+    roots = {}
+    for name, flags in (("local", []), ("ray", ray_flags(ray_address, 2))):
+        roots[name] = tmp_path / name
+        run_cli(
+            "adademo-collect", "--suite.tasks=reach-v3,push-v3", "--episodes_per_task=2",
+            "--collector.type=smoothed", "--dataset.repo_id=local/c", f"--dataset.root={roots[name]}", *flags,
+        )  # fmt: skip
+    local, remote = read_episode_metadata(roots["local"]), read_episode_metadata(roots["ray"])
+    assert set(remote["adademo/collector"]) == {"smoothed-metaworld-scripted"}
+    assert list(local["adademo/seed"]) == list(remote["adademo/seed"])
+    fa, fb = frames_by_episode(roots["local"]), frames_by_episode(roots["ray"])
+    assert fa.keys() == fb.keys() and all(np.array_equal(fa[k], fb[k]) for k in fa)
 
 
 def worker_pids() -> list[int]:

@@ -1,6 +1,7 @@
 """`--strategy.type=every_failure`: each round, per task, the policy runs from `rollouts_per_task` fresh initial
 states and the expert demonstrates from every state where it failed (principle B with a fixed number of rollouts,
-where AdaDemo stops a task after E successes)."""
+where AdaDemo stops a task after E successes). The package also registers an expert, `--collector.type=smoothed`
+(`smoothed.py`): importing the package registers both."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.seeds import expansion_state_seed
 from adademo_lerobot.strategies.algorithm import InnerLoop
 from adademo_lerobot.strategies.base import StrategyConfig
+from adademo_lerobot_example import smoothed  # noqa: F401  (registers --collector.type=smoothed)
 
 
 @StrategyConfig.register_subclass("every_failure")
