@@ -32,11 +32,13 @@ class ScriptedCollectorConfig(CollectorConfig):
 
     def expert_class(self, suite: TaskSuite) -> type:
         if suite.name not in SCRIPTED_EXPERTS:
-            others = [  # every other registered expert type, so that a new one is named here too
+            # Every other registered expert type, so that a new one is named here too; not those built on the
+            # scripted experts (a plugin's), which need one as well.
+            others = [
                 f"--collector.type={name}"
                 + (f" ({cls.expert_hint})" if getattr(cls, "expert_hint", "") else "")
                 for name, cls in sorted(CollectorConfig.get_known_choices().items())
-                if cls is not type(self)
+                if not issubclass(cls, ScriptedCollectorConfig)
             ]
             raise AdaDemoError(
                 f"no scripted expert for suite {suite.name!r} (only for {', '.join(SCRIPTED_EXPERTS)}); use "

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 
@@ -19,13 +18,12 @@ from adademo_lerobot.suites.base import TaskSuite
 
 @CollectorConfig.register_subclass("smoothed")
 @dataclass
-class SmoothedCollectorConfig(CollectorConfig):
-    """The suite's scripted expert with smoothed actions."""
+class SmoothedCollectorConfig(ScriptedCollectorConfig):
+    """The suite's scripted expert with smoothed actions (a kind of scripted expert: where a suite has none, the
+    message that lists the other experts leaves it out)."""
 
     # The previous action's weight in each new one: 0 is the scripted expert itself.
     smoothing: float = 0.5
-    # How the messages that list a suite's experts name it.
-    expert_hint: ClassVar[str] = "the scripted expert with smoothed actions, from adademo_lerobot_example"
 
     def build(self, suite: TaskSuite) -> SmoothedExpert:
         if not 0 <= self.smoothing < 1:
@@ -48,7 +46,9 @@ class SmoothedExpert(SimulatedExpertCollector):
     def __init__(self, suite: TaskSuite, config: SmoothedCollectorConfig):
         super().__init__(suite, config)
         self.name = config.expert_name(suite)
-        self.scripted = ScriptedCollectorConfig().build(suite)  # no suite without one gets here: it says so
+        self.scripted = ScriptedCollectorConfig().build(
+            suite
+        )  # a suite without one is refused here, in one line
 
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]:
         """A new smoother for each attempt: its first action is the scripted expert's."""
