@@ -343,6 +343,7 @@ def test_fixed_set_evaluation_and_collection_are_the_same_with_any_number_of_wor
         assert fa.keys() == fb.keys() and all(np.array_equal(fa[k], fb[k]) for k in fa)
 
 
+@pytest.mark.slow  # the default suite's budget: a Ray claim, as most of this module's
 def test_a_plugin_expert_records_the_same_demonstrations_on_ray_workers(ray_address, tmp_path):
     """The workers import a plugin's expert when they get one (docs/extending.md): examples/adademo_lerobot_example's
     `--collector.type=smoothed` gives the same episodes on two workers as in the driver's process."""

@@ -151,6 +151,7 @@ def test_kept_rollouts_in_a_dagger_dataset_are_the_policys_frames(reach, tmp_pat
     assert LeRobotDataset("local/demo", root=root).num_episodes == len(eps)
 
 
+@pytest.mark.slow  # the default suite's budget; test_expand's kill -9 test resumes a round by default
 def test_a_killed_round_resumes_to_the_dataset_an_uninterrupted_round_makes(reach, tmp_path):
     """Killed once a success is journaled and before anything of the round is committed (one commit at the
     task's end): the rerun runs the journaled successes again and keeps them, in the same order."""
