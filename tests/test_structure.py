@@ -7,7 +7,9 @@ against that direction (or any cycle, including one held together by an import i
 from __future__ import annotations
 
 import ast
+import importlib.util
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -228,3 +230,25 @@ def test_importing_the_library_changes_nothing_of_the_process():
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
     assert "CHANGED [] PYPLOT False" in proc.stdout, proc.stdout + proc.stderr[-2000:]
+
+
+def test_the_example_plugins_import_only_the_documented_plugin_interface():
+    """docs/extending.md, "What a plugin imports", lists the modules a plugin may build on; the example plugins
+    (third-party code as a user writes it) import nothing else of the package."""
+    doc = (PACKAGE.parent / "docs" / "extending.md").read_text()
+    section = doc.split("## What a plugin imports", 1)[1].split("\n## ", 1)[0]
+    interface = set(re.findall(r"^\| `(adademo_lerobot\.[\w.]+)` \|", section, flags=re.MULTILINE))
+    assert len(interface) >= 8, interface
+    for module in interface:
+        assert importlib.util.find_spec(module) is not None, module
+    used = {}
+    for path in sorted((PACKAGE.parent / "examples").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module]
+            for name in names:
+                if name == "adademo_lerobot" or name.startswith("adademo_lerobot."):
+                    used.setdefault(name, []).append(path.relative_to(PACKAGE.parent))
+    assert used, "the examples import the package"
+    assert set(used) <= interface, {m: p for m, p in used.items() if m not in interface}
