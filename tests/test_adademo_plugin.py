@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import assert_cli_error, expand, file_digests, run_cli, stock_episodes
+from conftest import assert_cli_error, episode_frames, expand, file_digests, run_cli, stock_episodes
 
 from adademo_lerobot.collectors.metaworld_scripted import scripted_policy
 from adademo_lerobot.core.plugins import plugin_names
@@ -97,9 +97,6 @@ def test_a_plugin_expert_records_its_own_actions_and_refuses_a_bad_field(tmp_pat
     scripted expert's actions along the episode (replayed in the suite's env from the episode's initial state), the
     episodes name it as their expert and stock LeRobot reads them; a weight outside [0, 1) is one `error:` line
     with nothing written."""
-    import pandas as pd
-    import pyarrow.parquet as pq
-
     root = tmp_path / "smoothed"
     run_cli(
         "adademo-collect", f"--suite.tasks={','.join(TASKS)}", "--episodes_per_task=2",
@@ -109,11 +106,10 @@ def test_a_plugin_expert_records_its_own_actions_and_refuses_a_bad_field(tmp_pat
     eps = read_episode_metadata(root)
     assert list(eps.task) == [TASKS[0]] * 2 + [TASKS[1]] * 2
     assert set(eps["adademo/collector"]) == {"smoothed-metaworld-scripted"}
-    data = pd.concat(pq.read_table(p).to_pandas() for p in sorted((root / "data").rglob("*.parquet")))
     suite = make_suite(MetaWorldSuiteConfig(tasks=",".join(TASKS)))
     smoothed_away = 0.0  # how far the largest recorded action is from the scripted expert's own at that step
     for index, ep in eps.iterrows():
-        recorded = np.stack(data[data.episode_index == index]["action"].to_numpy())
+        recorded = episode_frames(root, index)["action"]
         env = suite.make_env(ep.task, terminate_on_success=False)
         obs, _ = env.reset(options={"initial_state": ep["adademo/initial_state"]})
         scripted, previous = scripted_policy(ep.task), None

@@ -46,9 +46,8 @@ class SmoothedExpert(SimulatedExpertCollector):
     def __init__(self, suite: TaskSuite, config: SmoothedCollectorConfig):
         super().__init__(suite, config)
         self.name = config.expert_name(suite)
-        self.scripted = ScriptedCollectorConfig().build(
-            suite
-        )  # a suite without one is refused here, in one line
+        # A suite without a scripted expert is refused here, in one line.
+        self.scripted = ScriptedCollectorConfig().build(suite)
 
     def expert_for(self, task: str) -> Callable[[dict], np.ndarray]:
         """A new smoother for each attempt: its first action is the scripted expert's."""
