@@ -474,6 +474,37 @@ def phase_export(out: Path) -> None:
             export_run(out, int(arm_dir.parent.name.removeprefix("seed")), arm_dir.name)
 
 
+def arm_status(run_dir: Path) -> dict:
+    """Where a run folder of `arms` stands (a seed's base or an arm, finished or not): its stages done, the
+    average success of each round evaluated so far, and the demonstrations its expansion rounds added."""
+    done = json.loads((run_dir / "run_state.json").read_text())["done"]
+    averages = []
+    for summary in sorted((run_dir / "eval").glob("round-*/eval_summary.json")):
+        rates = [row["success_rate"] for row in json.loads(summary.read_text())["per_task"]]
+        averages.append(100 * sum(rates) / len(rates))
+    added = sum(
+        sum(stage["result"].get("demos_added", {}).values())
+        for name, stage in done.items()
+        if name.startswith("expand-")
+    )
+    return {"stages": list(done), "averages": averages, "added": added, "finished": finished(run_dir)}
+
+
+def phase_status(out: Path) -> None:
+    """A table of every run folder under `out`, for following a table that takes days (what `arms` would do next
+    is each unfinished row's next stage)."""
+    print("| seed | run | stages done | average success by round, % | demos added |")
+    print("| --- | --- | --- | --- | --- |")
+    for state in sorted(out.glob("seed*/*/run_state.json")):
+        run_dir = state.parent
+        if run_dir.name.endswith(".copying"):  # a branch being copied from its base
+            continue
+        status = arm_status(run_dir)
+        stages = "finished" if status["finished"] else (status["stages"] or ["none"])[-1] + " done"
+        averages = " -> ".join(f"{a:.1f}" for a in status["averages"]) or "-"
+        print(f"| {run_dir.parent.name} | {run_dir.name} | {stages} | {averages} | {status['added']} |")
+
+
 def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
     for seed in seeds:
         base = ensure_base(out, seed)
@@ -621,7 +652,7 @@ TAKEOVER_ARMS = {
 def main() -> None:
     global SUMMARIES, RECIPE
     parser = argparse.ArgumentParser()
-    parser.add_argument("phase", choices=["select", "noise", "arms", "reread", "export", "report"])
+    parser.add_argument("phase", choices=["select", "noise", "arms", "reread", "export", "status", "report"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--arms", nargs="+", choices=list(ALL_ARMS), default=list(ALL_ARMS))
     parser.add_argument("--out", type=Path, default=Path.home() / "adademo-bench")
@@ -692,6 +723,8 @@ def main() -> None:
         phase_reread(args.from_out, args.out, args.seeds, args.arms)
     elif args.phase == "export":
         phase_export(args.out)
+    elif args.phase == "status":
+        phase_status(args.out)
     else:
         phase_report(args.seeds, args.arms)  # every seed of the summaries folder
 

@@ -1,0 +1,44 @@
+"""benchmarks/data_efficiency.py status: where each run folder of a days-long table stands, read from the files
+adademo-run leaves (its run state and each round's evaluation summary)."""
+
+import json
+
+from conftest import load_benchmark
+
+bench = load_benchmark("data_efficiency")
+
+
+def run_folder(root, done, rates_by_round):
+    """A run folder's run state and evaluation summaries, in the shape adademo-run writes them."""
+    root.mkdir(parents=True)
+    (root / "run_state.json").write_text(json.dumps({"settings": {}, "done": done}))
+    for r, rates in enumerate(rates_by_round):
+        folder = root / "eval" / f"round-{r:03d}"
+        folder.mkdir(parents=True)
+        rows = [
+            {"task": t, "episodes": 50, "success_rate": rate} for t, rate in zip("ab", rates, strict=True)
+        ]
+        (folder / "eval_summary.json").write_text(json.dumps({"round": r, "per_task": rows}))
+
+
+def test_status_lists_each_run_with_its_rounds_and_added_demonstrations(tmp_path, capsys):
+    base = {"collect": {"result": {}}, "train-0": {"result": "x"}, "eval-0": {"result": {}}}
+    expand = {f"expand-{r}": {"result": {"demos_added": {"a": r, "b": 2 * r}}} for r in (1, 2, 3)}
+    rounds = {f"{k}-{r}": {"result": {}} for r in (1, 2, 3) for k in ("train", "eval")}
+    run_folder(tmp_path / "seed1" / "base", base, [(0.5, 0.25)])
+    run_folder(
+        tmp_path / "seed1" / "uniform", base | expand | rounds, [(0.5, 0.25), (0.5, 0.5), (1, 0.5), (1, 1)]
+    )
+    partial = base | {"expand-1": expand["expand-1"], "train-1": {"result": "y"}}
+    run_folder(tmp_path / "seed2" / "adademo", partial, [(0.0, 0.5)])
+    run_folder(tmp_path / "seed2" / "budgeted.copying", base, [(0.0, 0.5)])
+
+    status = bench.arm_status(tmp_path / "seed1" / "uniform")
+    assert status["finished"] and status["added"] == 18 and status["averages"] == [37.5, 50.0, 75.0, 100.0]
+    bench.phase_status(tmp_path)
+    rows = capsys.readouterr().out.strip().splitlines()[2:]
+    assert rows == [
+        "| seed1 | base | eval-0 done | 37.5 | 0 |",
+        "| seed1 | uniform | finished | 37.5 -> 50.0 -> 75.0 -> 100.0 | 18 |",
+        "| seed2 | adademo | train-1 done | 25.0 | 3 |",  # the copy of a branch in progress is left out
+    ]
