@@ -480,7 +480,7 @@ def arm_status(run_dir: Path) -> dict:
     done = json.loads((run_dir / "run_state.json").read_text())["done"]
     averages = []
     for summary in sorted((run_dir / "eval").glob("round-*/eval_summary.json")):
-        rates = [row["success_rate"] for row in json.loads(summary.read_text())["per_task"]]
+        rates = eval_table(run_dir, int(summary.parent.name.removeprefix("round-"))).values()
         averages.append(100 * sum(rates) / len(rates))
     added = sum(
         sum(stage["result"].get("demos_added", {}).values())
