@@ -693,6 +693,102 @@ def where_episodes_went(
     ]
 
 
+# A task at or above this success at round 0 (mean over Uniform's seeds) is solved: that demonstrations do not
+# raise it says nothing about whether they could.
+SOLVED = 0.95
+
+
+def demonstration_return_lines(
+    runs: dict[tuple[str, int], Run],
+    arms: list[str],
+    seeds_of: dict[str, list[int]],
+    tasks: list[str],
+    labels,
+) -> list[str]:
+    """Do a task's demonstrations raise it? Per task, Uniform's return on its added demonstrations (points of
+    success per 10, mean over its seeds) beside each arm's demonstrations there as a multiple of Uniform's
+    (paired seeds); then the share of each arm's added demonstrations that went to tasks Uniform's did not raise
+    (return <= 0), the solved ones (round 0 >= `SOLVED`) apart from those still failing. Principle A gives the
+    most to the weakest task, which pays only where that task also rises with demonstrations: this says, per
+    task, where an allocation bought nothing."""
+    from adademo_lerobot.core.tables import table
+
+    def added(run: Run) -> np.ndarray:  # demonstrations per task after the last round
+        rounds = run.success.shape[1]
+        return np.array([cumulative_added(run.ledger, rounds, COSTS["demos"], t)[-1] for t in tasks])
+
+    uniform = [runs[("uniform", s)] for s in seeds_of["uniform"]]
+    start = np.mean([r.success[:, 0] for r in uniform], axis=0)
+    paired = {
+        a: seeds_of[a] if a == "uniform" else [s for s in seeds_of[a] if s in seeds_of["uniform"]]
+        for a in arms
+    }
+    demos = {a: [added(runs[(a, s)]) for s in seeds] for a, seeds in paired.items()}
+    with np.errstate(divide="ignore", invalid="ignore"):  # a task Uniform added nothing to: nan, shown as -
+        returns = np.array(
+            [
+                1000 * (r.success[:, -1] - r.success[:, 0]) / d
+                for r, d in zip(uniform, demos["uniform"], strict=True)
+            ]
+        )
+        returns[~np.isfinite(returns)] = np.nan
+        mean_return = np.nanmean(returns, axis=0)
+        multiples = {
+            a: np.mean(
+                [d / added(runs[("uniform", s)]) for d, s in zip(demos[a], paired[a], strict=True)], axis=0
+            )
+            for a in arms
+            if a != "uniform"
+        }
+    not_raised = {  # nan compares False: a task without a return is never 'not raised'
+        f"solved at round 0 (>= {100 * SOLVED:.0f} %)": (mean_return <= 0) & (start >= SOLVED),
+        "still failing": (mean_return <= 0) & (start < SOLVED),
+    }
+    rows = [
+        [
+            task,
+            f"{100 * start[i]:.0f} -> {100 * np.mean([r.success[i, -1] for r in uniform]):.0f}",
+            "-" if np.isnan(mean_return[i]) else f"{mean_return[i]:+.1f}",
+            *(f"{m[i]:.2f}x" if np.isfinite(m[i]) else "-" for m in multiples.values()),
+        ]
+        for i, task in enumerate(tasks)
+    ]
+    shares = [
+        f"{kind} ({', '.join(t for t, f in zip(tasks, mask, strict=True) if f)}): "
+        + ", ".join(
+            f"{labels.get(a, a)} {100 * np.mean([d[mask].sum() / max(d.sum(), 1) for d in demos[a]]):.0f} %"
+            for a in arms
+        )
+        for kind, mask in not_raised.items()
+        if mask.any()
+    ]
+    return [
+        "## Do demonstrations raise a task? Uniform's return per task, and where each arm put its demonstrations",
+        "",
+        "Per task: Uniform's success at round 0 and after the last round (%, mean over its seeds), its return "
+        "((last - round 0) per 10 demonstrations it added there, in points, mean over its seeds; one training's "
+        "chance moves a task by several points, so read the sign where it is large) and each arm's "
+        "demonstrations there over Uniform's (paired seeds).",
+        "",
+        table(
+            [
+                "task",
+                "Uniform, round 0 -> last, %",
+                "Uniform: points per 10 demonstrations",
+                *(f"{labels.get(a, a)}: demonstrations over Uniform's" for a in multiples),
+            ],
+            rows,
+            aligned=False,
+        ),
+        "",
+        "Share of the added demonstrations that went to tasks Uniform's demonstrations did not raise: "
+        + "; ".join(shares)
+        + "."
+        if shares
+        else "Uniform's demonstrations raised every task (return above 0).",
+    ]
+
+
 def flat_uniform_lines(runs: dict[tuple[str, int], Run], seeds: list[int]) -> list[str]:
     """Where Uniform's added demonstrations did not raise its average, said once: every arm starts at or above
     Uniform's final there, so 'reaches Uniform's final' holds at round 0 and its goals are not read."""
@@ -865,6 +961,7 @@ def write_report(
                 runs, arm, [s for s in seeds_of[arm] if s in seeds_of["uniform"]], tasks
             )
     lines += ["", *where_episodes_went(runs, arms, seeds_of, tasks, labels)]
+    lines += ["", *demonstration_return_lines(runs, arms, seeds_of, tasks, labels)]
     lines += [
         "",
         "## Will adaptive collection help on a task? Failure predictability against gains",

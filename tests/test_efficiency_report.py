@@ -464,3 +464,36 @@ def test_where_the_episodes_went_per_task_mean_over_paired_seeds():
         "| a | 18.0 / 0.0 | 9.0 / 45.0 |",  # 3 rounds of (2 + 4) / 2 demonstrations, of (10 + 20) / 2 rollouts
         "| b | 18.0 / 0.0 | 0.0 / 45.0 |",
     ]
+
+
+def test_demonstration_return_says_where_an_allocation_bought_nothing():
+    tasks = ["a", "b", "c"]
+    # Round 0 -> last: a solved (100 -> 100 %), b raised (40 -> 70 %), c failing and not raised (10 -> 5 %).
+    curves = {"a": [1.0, 1.0, 1.0, 1.0], "b": [0.4, 0.5, 0.6, 0.7], "c": [0.1, 0.1, 0.1, 0.05]}
+
+    def run(arm: str, demos: dict[str, int]) -> "report.Run":
+        ledger = [
+            {"round": r, "task": t, "demos_added": demos[t], "collection_env_steps": 0, "eval_episodes": 0}
+            for r in (1, 2, 3)
+            for t in tasks
+        ]
+        return report.load_run({"arm": arm, "seed": 0, "tasks": tasks, "success": curves, "ledger": ledger})
+
+    runs = {
+        ("uniform", 0): run("uniform", dict.fromkeys(tasks, 2)),
+        ("adademo", 0): run("adademo", {"a": 0, "b": 2, "c": 4}),
+    }
+    lines = report.demonstration_return_lines(
+        runs, ["uniform", "adademo"], {"uniform": [0], "adademo": [0]}, tasks, {"adademo": "A"}
+    )
+    table_rows = lines[4].splitlines()[2:]
+    # Uniform's return: (last - round 0) per 10 of its 6 demonstrations per task, in points.
+    assert table_rows == [
+        "| a | 100 -> 100 | +0.0 | 0.00x |",
+        "| b | 40 -> 70 | +50.0 | 1.00x |",
+        "| c | 10 -> 5 | -8.3 | 2.00x |",
+    ]
+    assert lines[-1] == (
+        "Share of the added demonstrations that went to tasks Uniform's demonstrations did not raise: "
+        "solved at round 0 (>= 95 %) (a): uniform 33 %, A 0 %; still failing (c): uniform 33 %, A 67 %."
+    )
