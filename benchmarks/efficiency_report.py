@@ -661,6 +661,12 @@ def fmt_seed_cstar(values: PerSeed, i: int) -> str:
     return low if low == high else f"{low} to {high}"
 
 
+def added_per_task(run: Run, measure: str) -> np.ndarray:
+    """What the expansion rounds added per task (in `run.tasks` order) after the last round, in `measure`."""
+    rounds = run.success.shape[1]
+    return np.array([cumulative_added(run.ledger, rounds, COSTS[measure], t)[-1] for t in run.tasks])
+
+
 def where_episodes_went(
     runs: dict[tuple[str, int], Run],
     arms: list[str],
@@ -672,17 +678,13 @@ def where_episodes_went(
     round, mean over the arm's seeds paired with Uniform (why an arm gains or loses on a task)."""
     from adademo_lerobot.core.tables import table
 
-    def added(arm: str, seed: int, measure: str, task: str) -> float:
-        run = runs[(arm, seed)]
-        return cumulative_added(run.ledger, run.success.shape[1], COSTS[measure], task)[-1]
-
     rows = []
-    for task in tasks:
+    for i, task in enumerate(tasks):
         cells = []
         for arm in arms:
             seeds = [s for s in seeds_of[arm] if s in seeds_of["uniform"]]
             demos, rollouts = (
-                np.mean([added(arm, s, m, task) for s in seeds]) for m in ("demos", "rollouts")
+                np.mean([added_per_task(runs[(arm, s)], m)[i] for s in seeds]) for m in ("demos", "rollouts")
             )
             cells.append(f"{demos:.1f} / {rollouts:.1f}")
         rows.append([task, *cells])
@@ -713,17 +715,13 @@ def demonstration_return_lines(
     task, where an allocation bought nothing."""
     from adademo_lerobot.core.tables import table
 
-    def added(run: Run) -> np.ndarray:  # demonstrations per task after the last round
-        rounds = run.success.shape[1]
-        return np.array([cumulative_added(run.ledger, rounds, COSTS["demos"], t)[-1] for t in tasks])
-
     uniform = [runs[("uniform", s)] for s in seeds_of["uniform"]]
     start = np.mean([r.success[:, 0] for r in uniform], axis=0)
     paired = {
         a: seeds_of[a] if a == "uniform" else [s for s in seeds_of[a] if s in seeds_of["uniform"]]
         for a in arms
     }
-    demos = {a: [added(runs[(a, s)]) for s in seeds] for a, seeds in paired.items()}
+    demos = {a: [added_per_task(runs[(a, s)], "demos") for s in seeds] for a, seeds in paired.items()}
     with np.errstate(divide="ignore", invalid="ignore"):  # a task Uniform added nothing to: nan, shown as -
         returns = np.array(
             [
@@ -735,7 +733,11 @@ def demonstration_return_lines(
         mean_return = np.nanmean(returns, axis=0)
         multiples = {
             a: np.mean(
-                [d / added(runs[("uniform", s)]) for d, s in zip(demos[a], paired[a], strict=True)], axis=0
+                [
+                    d / added_per_task(runs[("uniform", s)], "demos")
+                    for d, s in zip(demos[a], paired[a], strict=True)
+                ],
+                axis=0,
             )
             for a in arms
             if a != "uniform"
