@@ -1073,6 +1073,11 @@ def cstar_verdict(values: PerSeed, goal: float = 1.0, c: Comparison | None = Non
     return "not decided within the bounds of expert episodes"
 
 
+def never_reached(c: Comparison, reading: str) -> int:
+    """On how many seeds the arm never reaches Uniform's final average (in `reading`)."""
+    return sum(v is None for v in c.ratio[reading]["demos"].low)
+
+
 def efficiency_goal_lines(
     comparisons: dict[str, Comparison], labels: dict[str, str], correlations: dict[str, float]
 ) -> list[str]:
@@ -1086,7 +1091,8 @@ def efficiency_goal_lines(
     c = comparisons[arm]
     lines = [f"Best arm: {labels.get(arm, arm)} ({seeds_text(len(c.seeds))})."]
     readings = [
-        f"{name} {ratio_verdict(c.ratio[r]['demos'], 1 / 3, c)} ({fmt_ratio(c.ratio[r]['demos'], note=False)})"
+        f"{name} {ratio_verdict(c.ratio[r]['demos'], 1 / 3, c)}"
+        + (f" ({fmt_ratio(c.ratio[r]['demos'], note=False)})" if never_reached(c, r) < len(c.seeds) else "")
         for r, name in READINGS.items()
     ]
     lines.append(
@@ -1118,6 +1124,8 @@ def cost_goal_lines(comparisons: dict[str, Comparison], labels: dict[str, str]) 
         f"{fmt_ratio(c.ratio[r]['episodes'], note=False)} Uniform's episodes) and "
         f"{fmt_ratio(c.ratio[r]['demos'], note=False)} of its demonstrations "
         f"({ratio_verdict(c.ratio[r]['demos'], 1 / 3, c)})"
+        if never_reached(c, r) < len(c.seeds)
+        else f"{name}, never reaches Uniform's final ({seeds_text(len(c.seeds))})"
         for r, name in READINGS.items()
     ]
     met = {

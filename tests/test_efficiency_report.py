@@ -497,3 +497,19 @@ def test_demonstration_return_says_where_an_allocation_bought_nothing():
         "Share of the added demonstrations that went to tasks Uniform's demonstrations did not raise: "
         "solved at round 0 (>= 95 %) (a): uniform 33 %, A 0 %; still failing (c): uniform 33 %, A 67 %."
     )
+
+
+def test_goal_lines_of_an_arm_that_never_reaches_uniforms_final_say_so_once():
+    r = runs(50)
+    r[("takeover", 0)] = report.load_run(summary("takeover", 0, [0.5, 0.6, 0.6, 0.7], 50))
+    comparisons = {"takeover": report.compare(r, "takeover", [0])}
+    [_, demos_line, *_] = report.efficiency_goal_lines(comparisons, {}, {})
+    assert demos_line == (
+        "- Uniform's final average with <= 1/3 of Uniform's added demonstrations: interpolated missed: never "
+        "reached on 1 of 1 seeds; at trained policies missed: never reached on 1 of 1 seeds."
+    )
+    cost_line = report.cost_goal_lines(comparisons, {})[1]
+    assert cost_line.endswith(
+        "95 % intervals: missed: interpolated, never reaches Uniform's final (1 seed); at trained policies, "
+        "never reaches Uniform's final (1 seed)."
+    )
