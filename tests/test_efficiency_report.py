@@ -466,25 +466,29 @@ def test_where_the_episodes_went_per_task_mean_over_paired_seeds():
     ]
 
 
+def demos_run(arm: str, curves: dict[str, list[float]], demos: dict[str, int]) -> "report.Run":
+    """Seed 0 of `arm`: success `curves` per task over rounds 0-3, `demos[task]` demonstrations in each of rounds
+    1-3 (no other cost)."""
+    ledger = [
+        {"round": r, "task": t, "demos_added": demos[t], "collection_env_steps": 0, "eval_episodes": 0}
+        for r in (1, 2, 3)
+        for t in curves
+    ]
+    return report.load_run(
+        {"arm": arm, "seed": 0, "tasks": list(curves), "success": curves, "ledger": ledger}
+    )
+
+
 def test_demonstration_return_says_where_an_allocation_bought_nothing():
     tasks = ["a", "b", "c"]
     # Round 0 -> last: a solved (100 -> 100 %), b raised (40 -> 70 %), c failing and not raised (10 -> 5 %).
     curves = {"a": [1.0, 1.0, 1.0, 1.0], "b": [0.4, 0.5, 0.6, 0.7], "c": [0.1, 0.1, 0.1, 0.05]}
-
-    def run(arm: str, demos: dict[str, int]) -> "report.Run":
-        ledger = [
-            {"round": r, "task": t, "demos_added": demos[t], "collection_env_steps": 0, "eval_episodes": 0}
-            for r in (1, 2, 3)
-            for t in tasks
-        ]
-        return report.load_run({"arm": arm, "seed": 0, "tasks": tasks, "success": curves, "ledger": ledger})
-
     runs = {
-        ("uniform", 0): run("uniform", dict.fromkeys(tasks, 2)),
-        ("adademo", 0): run("adademo", {"a": 0, "b": 2, "c": 4}),
+        ("uniform", 0): demos_run("uniform", curves, dict.fromkeys(tasks, 2)),
+        ("adademo", 0): demos_run("adademo", curves, {"a": 0, "b": 2, "c": 4}),
     }
     lines = report.demonstration_return_lines(
-        runs, ["uniform", "adademo"], {"uniform": [0], "adademo": [0]}, tasks, {"adademo": "A"}
+        runs, ["uniform", "adademo"], {"uniform": [0], "adademo": [0]}, {"adademo": "A"}
     )
     table_rows = lines[4].splitlines()[2:]
     # Uniform's return: (last - round 0) per 10 of its 6 demonstrations per task, in points.
@@ -513,3 +517,16 @@ def test_goal_lines_of_an_arm_that_never_reaches_uniforms_final_say_so_once():
         "95 % intervals: missed: interpolated, never reaches Uniform's final (1 seed); at trained policies, "
         "never reaches Uniform's final (1 seed)."
     )
+
+
+def test_demonstration_return_of_a_task_uniform_added_nothing_to_is_left_blank(recwarn):
+    curves = {"a": [0.1, 0.1, 0.1, 0.1], "b": [0.4, 0.5, 0.6, 0.7]}
+    runs = {
+        ("uniform", 0): demos_run("uniform", curves, {"a": 0, "b": 2}),
+        ("arm", 0): demos_run("arm", curves, {"a": 1, "b": 2}),
+    }
+    lines = report.demonstration_return_lines(runs, ["uniform", "arm"], {"uniform": [0], "arm": [0]}, {})
+    # The expert failed every attempt on a for Uniform: no return there, so a is not counted as 'not raised'.
+    assert lines[4].splitlines()[2:] == ["| a | 10 -> 10 | - | - |", "| b | 40 -> 70 | +50.0 | 1.00x |"]
+    assert lines[-1] == "Uniform's demonstrations raised every task they were added to (return above 0)."
+    assert not recwarn.list
