@@ -678,16 +678,15 @@ def where_episodes_went(
     round, mean over the arm's seeds paired with Uniform (why an arm gains or loses on a task)."""
     from adademo_lerobot.core.tables import table
 
-    rows = []
-    for i, task in enumerate(tasks):
-        cells = []
-        for arm in arms:
-            seeds = [s for s in seeds_of[arm] if s in seeds_of["uniform"]]
-            demos, rollouts = (
-                np.mean([added_per_task(runs[(arm, s)], m)[i] for s in seeds]) for m in ("demos", "rollouts")
-            )
-            cells.append(f"{demos:.1f} / {rollouts:.1f}")
-        rows.append([task, *cells])
+    mean_added = {}  # (arm, measure) -> per task, mean over the arm's seeds paired with Uniform
+    for arm in arms:
+        seeds = [s for s in seeds_of[arm] if s in seeds_of["uniform"]]
+        for m in ("demos", "rollouts"):
+            mean_added[(arm, m)] = np.mean([added_per_task(runs[(arm, s)], m) for s in seeds], axis=0)
+    rows = [
+        [task, *(f"{mean_added[(a, 'demos')][i]:.1f} / {mean_added[(a, 'rollouts')][i]:.1f}" for a in arms)]
+        for i, task in enumerate(tasks)
+    ]
     return [
         "## Where the episodes went (per task after the last round: demonstrations / rollouts, mean over seeds)",
         "",
@@ -714,30 +713,18 @@ def demonstration_return_lines(
     uniform = [runs[("uniform", s)] for s in seeds_of["uniform"]]
     tasks = uniform[0].tasks
     start = np.mean([r.success[:, 0] for r in uniform], axis=0)
-    paired = {
-        a: seeds_of[a] if a == "uniform" else [s for s in seeds_of[a] if s in seeds_of["uniform"]]
-        for a in arms
-    }
+    paired = {a: [s for s in seeds_of[a] if s in seeds_of["uniform"]] for a in arms}
     demos = {a: [added_per_task(runs[(a, s)], "demos") for s in seeds] for a, seeds in paired.items()}
+    uniform_demos = dict(zip(seeds_of["uniform"], demos["uniform"], strict=True))
     with np.errstate(divide="ignore", invalid="ignore"):  # a task Uniform added nothing to: nan, shown as -
         returns = np.array(
-            [
-                1000 * (r.success[:, -1] - r.success[:, 0]) / d
-                for r, d in zip(uniform, demos["uniform"], strict=True)
-            ]
+            [1000 * (r.success[:, -1] - r.success[:, 0]) / uniform_demos[r.seed] for r in uniform]
         )
         known = np.isfinite(returns)
-        mean_return = np.where(known, returns, 0).sum(axis=0) / known.sum(
-            axis=0
-        )  # nanmean, without its warning
+        # The mean over the seeds with a return (np.nanmean warns where there is none).
+        mean_return = np.where(known, returns, 0).sum(axis=0) / known.sum(axis=0)
         multiples = {
-            a: np.mean(
-                [
-                    d / added_per_task(runs[("uniform", s)], "demos")
-                    for d, s in zip(demos[a], paired[a], strict=True)
-                ],
-                axis=0,
-            )
+            a: np.mean([d / uniform_demos[s] for d, s in zip(demos[a], paired[a], strict=True)], axis=0)
             for a in arms
             if a != "uniform"
         }
