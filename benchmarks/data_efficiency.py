@@ -248,6 +248,8 @@ BASE_FLAGS: list[str] = []
 # intervals over seeds include the sampling of the test states; `shared`: every seed on eval seed 100's (the
 # folders written before this option).
 TEST_STATES = ["shared"]
+# A seed's shared round 0, which every arm starts from a copy of.
+BASE_STAGES = ("collect", "train-0", "eval-0")
 
 
 def adademo_run(run_dir: Path, *flags: str) -> None:
@@ -298,7 +300,7 @@ def branch_from_base(base: Path, arm_dir: Path, flags: list[str]) -> None:
     state = json.loads((tmp / "run_state.json").read_text())
     cfg = parse_config(RunConfig, [f"--config_path={RECIPE}", f"--run_dir={arm_dir}", *flags])
     state["settings"].update(run_settings(cfg, state["settings"]["suite"]))
-    state["done"] = {k: v for k, v in state["done"].items() if k in ("collect", "train-0", "eval-0")}
+    state["done"] = {k: v for k, v in state["done"].items() if k in BASE_STAGES}
     train0 = state["done"]["train-0"]
     train0["result"] = train0["result"].replace(str(base.resolve()), str(arm_dir.resolve()))
     (tmp / "run_state.json").write_text(json.dumps(state, indent=2))
@@ -476,7 +478,8 @@ def phase_export(out: Path) -> None:
 
 def arm_status(run_dir: Path) -> dict:
     """Where a run folder of `arms` stands (a seed's base or an arm, finished or not): its stages done, the
-    average success of each round evaluated so far, and the demonstrations its expansion rounds added."""
+    average success of each round evaluated so far, the demonstrations its expansion rounds added, and the hours
+    its own stages took (an arm's from round 1 on: its round 0 is the base's, copied)."""
     done = json.loads((run_dir / "run_state.json").read_text())["done"]
     averages = []
     for summary in sorted((run_dir / "eval").glob("round-*/eval_summary.json")):
@@ -487,14 +490,23 @@ def arm_status(run_dir: Path) -> dict:
         for name, stage in done.items()
         if name.startswith("expand-")
     )
-    return {"stages": list(done), "averages": averages, "added": added, "finished": finished(run_dir)}
+    own = [stage for name, stage in done.items() if run_dir.name == "base" or name not in BASE_STAGES]
+    hours = sum(stage.get("seconds", 0.0) for stage in own) / 3600
+    return {
+        "stages": list(done),
+        "averages": averages,
+        "added": added,
+        "hours": hours,
+        "finished": finished(run_dir),
+    }
 
 
 def phase_status(out: Path) -> None:
     """A table of every run folder under `out`, for following a table that takes days (what `arms` would do next
-    is each unfinished row's next stage)."""
-    print("| seed | run | stages done | average success by round, % | demos added |")
-    print("| --- | --- | --- | --- | --- |")
+    is each unfinished row's next stage). Hours are those of the stages done, on the machine that ran them: what
+    an unfinished arm still needs is about a finished one's less its own."""
+    print("| seed | run | stages done | average success by round, % | demos added | hours |")
+    print("| --- | --- | --- | --- | --- | --- |")
     for state in sorted(out.glob("seed*/*/run_state.json")):
         run_dir = state.parent
         if run_dir.name.endswith(".copying"):  # a branch being copied from its base
@@ -502,7 +514,8 @@ def phase_status(out: Path) -> None:
         status = arm_status(run_dir)
         stages = "finished" if status["finished"] else (status["stages"] or ["none"])[-1] + " done"
         averages = " -> ".join(f"{a:.1f}" for a in status["averages"]) or "-"
-        print(f"| {run_dir.parent.name} | {run_dir.name} | {stages} | {averages} | {status['added']} |")
+        row = f"| {run_dir.parent.name} | {run_dir.name} | {stages} | {averages} | {status['added']} |"
+        print(f"{row} {status['hours']:.1f} |")
 
 
 def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:

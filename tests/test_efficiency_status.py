@@ -22,23 +22,30 @@ def run_folder(root, done, rates_by_round):
 
 
 def test_status_lists_each_run_with_its_rounds_and_added_demonstrations(tmp_path, capsys):
-    base = {"collect": {"result": {}}, "train-0": {"result": "x"}, "eval-0": {"result": {}}}
-    expand = {f"expand-{r}": {"result": {"demos_added": {"a": r, "b": 2 * r}}} for r in (1, 2, 3)}
-    rounds = {f"{k}-{r}": {"result": {}} for r in (1, 2, 3) for k in ("train", "eval")}
+    base = {
+        "collect": {"result": {}, "seconds": 3600.0},
+        "train-0": {"result": "x", "seconds": 1800.0},
+        "eval-0": {"result": {}, "seconds": 360.0},
+    }
+    expand = {
+        f"expand-{r}": {"result": {"demos_added": {"a": r, "b": 2 * r}}, "seconds": 720.0} for r in (1, 2, 3)
+    }
+    rounds = {f"{k}-{r}": {"result": {}, "seconds": 360.0} for r in (1, 2, 3) for k in ("train", "eval")}
     run_folder(tmp_path / "seed1" / "base", base, [(0.5, 0.25)])
     run_folder(
         tmp_path / "seed1" / "uniform", base | expand | rounds, [(0.5, 0.25), (0.5, 0.5), (1, 0.5), (1, 1)]
     )
-    partial = base | {"expand-1": expand["expand-1"], "train-1": {"result": "y"}}
+    partial = base | {"expand-1": expand["expand-1"], "train-1": {"result": "y", "seconds": 360.0}}
     run_folder(tmp_path / "seed2" / "adademo", partial, [(0.0, 0.5)])
     run_folder(tmp_path / "seed2" / "budgeted.copying", base, [(0.0, 0.5)])
 
     status = bench.arm_status(tmp_path / "seed1" / "uniform")
     assert status["finished"] and status["added"] == 18 and status["averages"] == [37.5, 50.0, 75.0, 100.0]
+    assert status["hours"] == 1.2  # its own rounds 1-3 (3 x 0.2 + 6 x 0.1), not the base's 1.6 copied with it
     bench.phase_status(tmp_path)
     rows = capsys.readouterr().out.strip().splitlines()[2:]
     assert rows == [
-        "| seed1 | base | eval-0 done | 37.5 | 0 |",
-        "| seed1 | uniform | finished | 37.5 -> 50.0 -> 75.0 -> 100.0 | 18 |",
-        "| seed2 | adademo | train-1 done | 25.0 | 3 |",  # the copy of a branch in progress is left out
+        "| seed1 | base | eval-0 done | 37.5 | 0 | 1.6 |",
+        "| seed1 | uniform | finished | 37.5 -> 50.0 -> 75.0 -> 100.0 | 18 | 1.2 |",
+        "| seed2 | adademo | train-1 done | 25.0 | 3 | 0.3 |",  # the copy of a branch in progress is left out
     ]
