@@ -414,6 +414,15 @@ def write_summary_table(name: str, text: str) -> None:
     print(text)
 
 
+def recipe_tasks(recipe: Path) -> list[str]:
+    """The tasks a recipe's suite runs, as a run records them (group names such as `mt10` expanded)."""
+    from adademo_lerobot.loop.cli import parse_config
+    from adademo_lerobot.loop.run import RunConfig
+    from adademo_lerobot.suites import make_suite
+
+    return make_suite(parse_config(RunConfig, [f"--config_path={recipe}", "--run_dir=unused"]).suite).tasks
+
+
 def export_run(out: Path, seed: int, arm: str) -> Path:
     """A finished arm's figures, small enough to commit: success and demos per task and round, the ledger (without
     machine paths and expert-failed states), the run's settings and the machine."""
@@ -427,6 +436,12 @@ def export_run(out: Path, seed: int, arm: str) -> Path:
     eps = read_episode_metadata(run_dir / "dataset")
     eps = eps[eps["adademo/round"] > 0]
     run = load_run(run_dir)
+    if run.tasks != recipe_tasks(RECIPE):
+        # A summary records the recipe it is read with; another recipe's name would be a false provenance.
+        sys.exit(
+            f"error: {run_dir} ran {', '.join(run.tasks)}, not the tasks of --recipe "
+            f"{RECIPE.relative_to(ROOT)}: export it with the recipe it ran"
+        )
     settings = json.loads((run_dir / "run_state.json").read_text())["settings"]
     summary = {
         "arm": arm,

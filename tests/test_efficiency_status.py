@@ -49,3 +49,21 @@ def test_status_lists_each_run_with_its_rounds_and_added_demonstrations(tmp_path
         "| seed1 | uniform | finished | 37.5 -> 50.0 -> 75.0 -> 100.0 | 18 | 1.2 |",
         "| seed2 | adademo | train-1 done | 25.0 | 3 | 0.3 |",  # the copy of a branch in progress is left out
     ]
+
+
+def test_every_committed_summary_names_the_recipe_that_runs_its_tasks():
+    """A summary's `recipe` is its provenance (the reports' header names it): the recipe must run the tasks the
+    summary holds. `export` refuses a run another recipe's tasks (mt10_cost's seed-2 costed_probe once named
+    the hard-8 recipe)."""
+    summaries = [json.loads(p.read_text()) for p in sorted(bench.RESULTS.glob("*/seed*-*.json"))]
+    by_recipe: dict[str, set[tuple[str, ...]]] = {}
+    for summary in summaries:
+        if "recipe" in summary:  # the earliest summaries predate the field (read as `--recipe`)
+            by_recipe.setdefault(summary["recipe"], set()).add(tuple(summary["tasks"]))
+    assert len(by_recipe) >= 4  # MetaWorld's two recipes and Adroit's tables
+    wrong = {
+        recipe: sorted(tasks)
+        for recipe, tasks in by_recipe.items()
+        if tasks != {tuple(bench.recipe_tasks(bench.ROOT / recipe))}
+    }
+    assert not wrong, f"summaries whose recipe runs other tasks: {wrong}"
