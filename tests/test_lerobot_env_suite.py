@@ -129,7 +129,11 @@ def test_bad_input_is_one_error_line_and_nothing_written(so101_dataset, tmp_path
         match="unknown --suite.env.type='so999'",
     )
     fails(*SO101[:3], "--suite.tasks=SO101Stack-v0", *EXPERT, match="unknown so101 env task 'SO101Stack-v0'")
-    fails(*SO101, "--collector.type=planner", match="restores initial states only")
+    fails(
+        *SO101,
+        "--collector.type=planner",
+        match="restores initial states only: use --collector.type=callable or policy",
+    )
     fails(
         *SO101, "--collector.type=callable", "--collector.entry=no_such_pkg.mod:f", match="cannot import it"
     )

@@ -120,6 +120,9 @@ def test_one_adademo_round_on_the_plugin(example_dataset, tmp_path):
         assert expert in error
     # An expert built on the scripted ones (adademo_lerobot_example's, when installed) needs one too: not offered.
     assert "--collector.type=smoothed" not in error and "--collector.type=scripted" not in error
+    assert (
+        "--collector.type=planner" not in error
+    )  # it needs a suite that restores any state; this one cannot
     assert file_digests(example_dataset) == before
     run_cli("adademo-run", f"--run_dir={run_dir}", f"--dataset.root={example_dataset}", *EXPERT, *tiny)
     eps = read_episode_metadata(run_dir / "dataset")

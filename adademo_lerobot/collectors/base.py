@@ -26,8 +26,8 @@ from adademo_lerobot.suites.base import TaskSuite, cached_for_task, full_state_s
 
 @dataclass
 class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
-    """Which expert records the demonstrations (`--collector.type=scripted|policy|callable`); each config builds its
-    own collector for a suite."""
+    """Which expert records the demonstrations (`--collector.type=scripted|policy|callable|planner`); each config
+    builds its own collector for a suite."""
 
     max_attempts: int = 3
     # Frames kept after the first success (the episode also ends at the suite's step limit).
@@ -50,6 +50,11 @@ class CollectorConfig(draccus.ChoiceRegistry, abc.ABC):
     @classmethod
     def default_choice_name(cls) -> str | None:
         return "scripted"
+
+    @classmethod
+    def serves(cls, suite: TaskSuite) -> bool:
+        """Whether this type of expert can act in `suite` at all (an error that names other experts names these)."""
+        return True
 
     @abc.abstractmethod
     def build(self, suite: TaskSuite) -> ExpertCollector:

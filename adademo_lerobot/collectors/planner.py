@@ -59,6 +59,10 @@ class PlannerCollectorConfig(CollectorConfig):
 
     expert_hint = "plans with the simulator; any suite with full-state restore"
 
+    @classmethod
+    def serves(cls, suite: TaskSuite) -> bool:
+        return suite.restores_any_state
+
     # Action sequences sampled around the plan at every step (one of them is the plan itself).
     samples: int = 32
     # Steps each sampled sequence is rolled out for (its reward is summed over them).
@@ -157,10 +161,13 @@ class PlannerExpert(SimulatedExpertCollector):
 
     def __init__(self, suite: TaskSuite, config: PlannerCollectorConfig):
         config.check_fields()
-        if not suite.restores_any_state:
+        if not config.serves(suite):
+            others = (
+                "scripted, callable or policy" if suite.name in SCRIPTED_EXPERTS else "callable or policy"
+            )
             raise AdaDemoError(
                 f"--collector.type=planner plans by restoring the simulator's state at every step; suite "
-                f"{suite.name!r} restores initial states only: use --collector.type=scripted, callable or policy"
+                f"{suite.name!r} restores initial states only: use --collector.type={others}"
             )
         super().__init__(suite, config)
         self.name = config.expert_name(suite)

@@ -32,13 +32,13 @@ class ScriptedCollectorConfig(CollectorConfig):
 
     def expert_class(self, suite: TaskSuite) -> type:
         if suite.name not in SCRIPTED_EXPERTS:
-            # Every other registered expert type, so that a new one is named here too; not those built on the
-            # scripted experts (a plugin's), which need one as well.
+            # Every other registered expert type that can act in this suite, so that a new one is named here too;
+            # not those built on the scripted experts (a plugin's), which need one as well.
             others = [
                 f"--collector.type={name}"
                 + (f" ({cls.expert_hint})" if getattr(cls, "expert_hint", "") else "")
                 for name, cls in sorted(CollectorConfig.get_known_choices().items())
-                if not issubclass(cls, ScriptedCollectorConfig)
+                if not issubclass(cls, ScriptedCollectorConfig) and cls.serves(suite)
             ]
             raise AdaDemoError(
                 f"no scripted expert for suite {suite.name!r} (only for {', '.join(SCRIPTED_EXPERTS)}); use "
