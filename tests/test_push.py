@@ -426,3 +426,24 @@ def test_card_validation_goes_to_the_endpoint_through_the_users_client(hub, monk
     finally:
         set_client_factory(previous)
     assert hub.requests[-1] == ("POST", "/api/validate-yaml", 200)
+
+
+def test_a_hub_that_does_not_answer_is_a_machine_failure_in_one_line(expanded, tmp_path):
+    """Nothing listens at HF_ENDPOINT: exit 1 (the network, not the input; the same command pushes later), one
+    `error:` line and nothing else on stderr (LeRobot's torchcodec warning once added ~90 lines on a machine
+    without FFmpeg: the dataset is opened with the quietly chosen video backend)."""
+    import socket
+    from types import SimpleNamespace
+
+    with socket.socket() as probe:  # a port nothing listens on once closed
+        probe.bind(("127.0.0.1", 0))
+        gone = SimpleNamespace(url=f"http://127.0.0.1:{probe.getsockname()[1]}")
+    before = file_digests(expanded)
+    proc = push(gone, tmp_path, f"--dataset.root={expanded}", "--repo_id=alice/offline")
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr[-3000:]
+    assert (
+        lines[0].startswith(f"error: cannot reach the hub at {gone.url}")
+        and "run the same command" in lines[0]
+    )
+    assert file_digests(expanded) == before

@@ -14,14 +14,27 @@ COMMIT_LOCK = threading.RLock()
 
 
 def check_writable_location(path: Path, what: str) -> None:
-    """`path` may not exist yet, but its nearest existing ancestor must be a writable folder."""
+    """`path` may not exist yet, but its nearest existing ancestor must be a writable folder: checked by creating
+    (and at once removing) a file there, since permissions alone do not tell (root, read-only mounts, immutable
+    folders)."""
+    import tempfile
+
     from adademo_lerobot.core.errors import AdaDemoError
 
     parent = Path(path)
     while not parent.exists():
         parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK):
-        raise AdaDemoError(f"cannot write {what} {path}: {parent} is not a writable folder")
+    if not parent.is_dir():
+        raise AdaDemoError(
+            f"cannot write {what} {path}: {parent} is a file, not a folder; choose another path"
+        )
+    try:
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as err:
+        raise AdaDemoError(
+            f"cannot write {what} {path}: {parent} is not a writable folder ({err.strerror or err})"
+        ) from None
 
 
 @contextmanager

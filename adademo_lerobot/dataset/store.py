@@ -359,12 +359,12 @@ class DemoDataset:
     @staticmethod
     def check_new_root(root: Path) -> None:
         root = Path(root)
+        check_writable_location(root, "dataset root")  # a file there, or a folder we cannot write
         if root.exists() and any(root.iterdir()):
             raise AdaDemoError(
                 f"dataset root {root} already exists; pass --resume=true to add episodes to it, "
                 "or choose another --dataset.root"
             )
-        check_writable_location(root, "dataset root")
 
     @classmethod
     def open(cls, repo_id: str, root: str | Path, suite_override: SuiteConfig | None = None) -> DemoDataset:

@@ -31,12 +31,34 @@ class LoadedPolicy:
 
 
 def check_checkpoint_folder(path: str | Path) -> Path:
+    """A LeRobot checkpoint folder whose config names a policy type and whose weights file is whole as far as its
+    header tells (read without loading a tensor), or one line saying what is wrong."""
+    import json
+
+    from safetensors import SafetensorError, safe_open
+
     path = Path(path)
     if not (path / "config.json").exists() or not (path / "model.safetensors").exists():
         raise AdaDemoError(
             f"no LeRobot checkpoint at {path} (expected config.json and model.safetensors; pass the "
             ".../checkpoints/last/pretrained_model folder)"
         )
+    try:
+        config = json.loads((path / "config.json").read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise AdaDemoError(
+            f"{path / 'config.json'} is not valid JSON ({err}): a damaged checkpoint"
+        ) from None
+    if not isinstance(config, dict) or "type" not in config:
+        raise AdaDemoError(f"{path / 'config.json'} names no policy type: not a LeRobot policy checkpoint")
+    try:
+        with safe_open(str(path / "model.safetensors"), framework="numpy") as weights:
+            weights.keys()
+    except (SafetensorError, OSError) as err:
+        raise AdaDemoError(
+            f"{path / 'model.safetensors'} cannot be read ({err}): the checkpoint's weights are damaged or were not "
+            "fully written; pass another checkpoint"
+        ) from None
     return path
 
 

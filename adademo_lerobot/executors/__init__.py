@@ -61,6 +61,10 @@ class ComputeArgs(ThreadArgs):
     # Device of the policy (cpu, cuda, mps).
     device: str = "cpu"
 
+    def validate_device(self) -> None:
+        """A device torch has here (the policy runs in this process; Ray workers check their own)."""
+        check_torch_device(self.device)
+
 
 @dataclass
 class ExecutionArgs(ComputeArgs):
@@ -74,6 +78,8 @@ class ExecutionArgs(ComputeArgs):
     def validate_execution(self) -> None:
         self.validate_threads()
         check_executor_args(self.executor, self.ray)
+        if self.executor == "local":
+            self.validate_device()
 
 
 class Pending(Protocol):
@@ -181,6 +187,34 @@ class LocalExecutor:
 
     def close(self) -> None:
         self.worker.close()
+
+
+def check_torch_device(device: str) -> None:
+    """`--device` names a device torch can use on this machine."""
+    if device == "cpu":
+        return  # without importing torch: flags are checked before the heavy imports
+    import torch
+
+    try:
+        kind = torch.device(device).type
+    except RuntimeError:
+        raise AdaDemoError(
+            f"--device={device!r} is not a torch device; use cpu, cuda, cuda:N or mps"
+        ) from None
+    available = {
+        "cpu": True,
+        "cuda": torch.cuda.is_available(),
+        "mps": torch.backends.mps.is_available(),
+    }
+    if kind not in available:
+        raise AdaDemoError(f"--device={device!r}: adademo runs policies on cpu, cuda or mps")
+    if not available[kind]:
+        raise AdaDemoError(
+            f"--device={device}: torch finds no {kind} device on this machine; use --device=cpu"
+        )
+    index = torch.device(device).index
+    if kind == "cuda" and index is not None and index >= torch.cuda.device_count():
+        raise AdaDemoError(f"--device={device}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
 def check_executor_args(executor: str, ray: RayArgs) -> None:

@@ -261,12 +261,30 @@ def in_flags(message: str) -> str:
 
 
 def check_config_path(argv: list[str]) -> None:
-    """A recipe that is not there is refused in one line that names the flag (not an OS error from deep in draccus)."""
+    """A recipe that is not there, or is not a YAML mapping of settings, is refused in one line that names the flag
+    (not an error from deep in draccus)."""
+    import yaml
+
     config_path, _ = _pop_arg("config_path", argv)
-    if config_path is not None and not Path(config_path).is_file():
+    if config_path is None:
+        return
+    example = "give a recipe's YAML file (e.g. recipes/quickstart.yaml)"
+    if not Path(config_path).is_file():
         what = "a folder" if Path(config_path).is_dir() else "no such file"
+        raise AdaDemoError(f"--config_path={config_path}: {what}; {example}")
+    try:
+        content = yaml.safe_load(Path(config_path).read_text())
+    except UnicodeDecodeError:
+        raise AdaDemoError(f"--config_path={config_path} is not a text file; {example}") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or str(err)
+        raise AdaDemoError(f"--config_path={config_path} is not valid YAML: {problem}{where}") from None
+    if not isinstance(content, dict):
+        what = "empty" if content is None else f"a YAML {type(content).__name__}"
         raise AdaDemoError(
-            f"--config_path={config_path}: {what}; give a recipe's YAML file (e.g. recipes/quickstart.yaml)"
+            f"--config_path={config_path} is {what}, not a mapping of settings (suite:, train:, ...); {example}"
         )
 
 

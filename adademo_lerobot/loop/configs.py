@@ -55,6 +55,10 @@ class CollectConfig(ExecutionArgs):
     # Episodes buffered in memory between dataset commits (a kill loses at most these).
     commit_every: int = 10
 
+    def validate(self) -> None:
+        if self.commit_every < 1:
+            raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
+
 
 @dataclass
 class TrainSamplingArgs:
@@ -330,6 +334,7 @@ class RecordConfig(ComputeArgs):
         if self.policy.path is None:
             raise AdaDemoError("--policy.path is required (the policy whose failures the round answers)")
         self.validate_threads()
+        self.validate_device()
         self.strategy.validate()
         self.strategy.check_one_round("adademo-record")
         if (why := self.strategy.needs_a_simulator()) is not None:

@@ -17,6 +17,7 @@ from tqdm import tqdm
 from adademo_lerobot.collectors import ScriptedCollectorConfig
 from adademo_lerobot.core.episodes import EpisodeRecord
 from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.files import check_writable_location
 from adademo_lerobot.core.progress import show
 from adademo_lerobot.core.seeds import evaluation_seeds
 from adademo_lerobot.evaluation.rollouts import format_success_table, success_table, write_eval_outputs
@@ -105,6 +106,7 @@ def run_eval(cfg) -> pd.DataFrame:
         raise AdaDemoError(f"--episodes_per_task must be >= 1, got {cfg.episodes_per_task}")
     if cfg.output_dir is None:
         raise AdaDemoError("--output_dir is required")
+    check_writable_location(Path(cfg.output_dir), "--output_dir")  # before the episodes run, not after
     cfg.validate_execution()
     suite_config, tasks = suite_to_evaluate(cfg.dataset.root, cfg.suite)
     suite = make_suite(suite_config)

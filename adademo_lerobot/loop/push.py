@@ -18,10 +18,11 @@ import contextlib
 import logging
 from pathlib import Path
 
-from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.errors import AdaDemoError, MachineError
 from adademo_lerobot.core.files import exclusive_use
 from adademo_lerobot.dataset.layout import TXN_FILE
 from adademo_lerobot.dataset.metadata import has_dataset, load_suite_config, read_episode_metadata
+from adademo_lerobot.dataset.video import video_backend
 from adademo_lerobot.loop.configs import PushConfig
 from adademo_lerobot.loop.dataset_card import adademo_card_section, summarize_rounds
 from adademo_lerobot.loop.expand import finish_stale_journals, unfinished_rounds
@@ -159,7 +160,8 @@ def push_dataset(cfg: PushConfig, root: Path) -> str:
     from huggingface_hub.errors import HfHubHTTPError
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    dataset = LeRobotDataset(cfg.repo_id, root=root)  # stock LeRobot must open what we publish
+    # Stock LeRobot must open what we publish; its video decoder chosen quietly (`dataset/video.py`).
+    dataset = LeRobotDataset(cfg.repo_id, root=root, video_backend=video_backend())
     branch = cfg.branch if cfg.branch not in (None, "main") else None
     api = HfApi(token=token)
     try:
@@ -185,7 +187,11 @@ def push_dataset(cfg: PushConfig, root: Path) -> str:
     except HfHubHTTPError as err:
         raise _hub_error(err, cfg.repo_id) from None
     except (httpx.TransportError, ConnectionError) as err:
-        raise AdaDemoError(f"cannot reach the hub at {constants.ENDPOINT}: {type(err).__name__}") from None
+        # The network, not the input: nothing was pushed, and the same command pushes once the hub answers.
+        raise MachineError(
+            f"cannot reach the hub at {constants.ENDPOINT}: {type(err).__name__}; check the network (or "
+            "HF_ENDPOINT), then run the same command to push"
+        ) from None
 
     url = f"{constants.ENDPOINT}/datasets/{cfg.repo_id}" + (f"/tree/{branch}" if branch else "")
     print(

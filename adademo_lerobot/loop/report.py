@@ -20,6 +20,7 @@ import pandas as pd
 
 from adademo_lerobot.collectors.base import expert_summary
 from adademo_lerobot.core.errors import AdaDemoError
+from adademo_lerobot.core.files import check_writable_location
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.dataset.interventions import intervention_flags
 from adademo_lerobot.dataset.ledger import read_ledger
@@ -41,6 +42,7 @@ from adademo_lerobot.loop.report_plots import (
     plot_success_vs_demos,
 )
 from adademo_lerobot.loop.run_results import RunResults
+from adademo_lerobot.loop.run_state import read_run_state
 
 
 def has_interventions(root: Path | None) -> bool:
@@ -62,10 +64,9 @@ def describe_start(begun: dict) -> str:
 
 def load_run(run_dir: Path) -> RunResults:
     run_dir = Path(run_dir)
-    state_path = run_dir / "run_state.json"
-    if not state_path.exists():
+    state = read_run_state(run_dir)
+    if state is None:
         raise AdaDemoError(f"{run_dir} is not an adademo-run folder (no run_state.json)")
-    state = json.loads(state_path.read_text())
     settings = state["settings"]
     tasks = settings["suite"]["tasks"].split(",")
     # A run started from a user's dataset: its round r is the dataset's round base + r.
@@ -201,10 +202,13 @@ def expert_lines(ledger: pd.DataFrame) -> list[str]:
 
 def load_uniform(path: Path, run: RunResults) -> RunResults:
     """The Uniform run to read c* against: a run on the same tasks that ran no policy rollouts."""
-    state = path / "run_state.json"
-    if not state.exists():
+    try:
+        state = read_run_state(path)
+    except AdaDemoError as err:
+        raise AdaDemoError(f"--compare_to: {err}") from None
+    if state is None:
         raise AdaDemoError(f"--compare_to: {path} is not an adademo-run folder (no run_state.json)")
-    tasks = json.loads(state.read_text())["settings"]["suite"]["tasks"].split(",")
+    tasks = state["settings"]["suite"]["tasks"].split(",")
     if set(tasks) != set(run.tasks):  # checked before loading: its results are of other tasks
         raise AdaDemoError(
             f"--compare_to: {path} ran other tasks ({','.join(tasks)}) than {run.run_dir} "
@@ -374,14 +378,22 @@ def dataset_report(root: Path, output_dir: str | None) -> Path | None:
 
 
 def run_report(cfg: ReportConfig) -> Path | None:
+    compare_to = getattr(cfg, "compare_to", None)  # ReportConfig's field (configs.py)
     if cfg.run_dir is None and cfg.dataset_root is not None:
+        if cfg.compare or compare_to:
+            raise AdaDemoError(
+                "--compare and --compare_to compare run folders with --run_dir's; a --dataset_root report has "
+                "no run to compare: drop them, or give --run_dir"
+            )
+        if cfg.output_dir is not None:
+            check_writable_location(Path(cfg.output_dir), "--output_dir")
         return dataset_report(Path(cfg.dataset_root), cfg.output_dir)
     if cfg.run_dir is None:
         raise AdaDemoError("--run_dir is required (or --dataset_root, for a dataset recorded on a robot)")
     out = Path(cfg.output_dir) if cfg.output_dir else Path(cfg.run_dir) / "report"
     run = load_run(Path(cfg.run_dir))
-    # A bad --compare_to is refused before anything is written (getattr: ReportConfig's field, configs.py).
-    compare_to = getattr(cfg, "compare_to", None)
+    # A bad --compare_to or output folder is refused before anything is written.
+    check_writable_location(out, "--output_dir")
     uniform = load_uniform(Path(compare_to), run) if compare_to else None
     path = write_report([Path(cfg.run_dir), *map(Path, cfg.compare)], out, uniform)
     print("\n".join([*cost_table(run), "", *break_even_summary(run, uniform)]))

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from adademo_lerobot.collectors.takeover import check_can_take_over
 from adademo_lerobot.core.errors import AdaDemoError
-from adademo_lerobot.core.files import atomic_write_text, exclusive_use
+from adademo_lerobot.core.files import atomic_write_text, check_writable_location, exclusive_use
 from adademo_lerobot.dataset.features import dataset_features
 from adademo_lerobot.dataset.layout import POLICY_SOURCE
 from adademo_lerobot.dataset.ledger import ledger_rounds
@@ -88,6 +88,11 @@ class RunConfig(RoundArgs):
             raise AdaDemoError("--run_dir is required (everything of the run goes there)")
         if self.rounds < 0 or self.initial_demos_per_task < 1:
             raise AdaDemoError("--rounds must be >= 0 and --initial_demos_per_task >= 1")
+        if self.eval.episodes_per_task < 1 or self.eval.batch_size < 1:
+            raise AdaDemoError(
+                f"--eval.episodes_per_task and --eval.batch_size must be >= 1, got {self.eval.episodes_per_task} "
+                f"and {self.eval.batch_size}"
+            )
         self.validate_round()  # the strategy, demo start and execution flags
         if self.dataset.root is not None and self.dataset.repo_id is None:
             self.dataset.repo_id = f"local/{Path(self.dataset.root).name}"
@@ -184,6 +189,7 @@ def run(cfg: RunConfig, on_ledger_written: Callable[[int], None] | None = None) 
 def checked_suite_and_start(cfg: RunConfig, run_dir: Path) -> tuple[TaskSuite, Start | None]:
     """The run's suite and, for a run that starts from the user's dataset and checkpoint, where it starts: all
     checked before the run folder is made. A resumed run keeps the suite it started with."""
+    check_writable_location(run_dir, "--run_dir")
     start, started = None, saved_stage(run_dir, "start")
     if cfg.dataset.repo_id is not None and started is None:
         start = check_start(

@@ -19,6 +19,29 @@ from adademo_lerobot.strategies import StrategyConfig
 from adademo_lerobot.suites import SuiteConfig
 
 
+def read_run_state(run_dir: Path) -> dict | None:
+    """`run_dir`'s run_state.json (None: there is none), refused in one line when it is not one adademo-run wrote
+    (the run is not ours, or the file was edited)."""
+    path = Path(run_dir) / "run_state.json"
+    if not path.exists():
+        return None
+    try:
+        state = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise AdaDemoError(
+            f"{path} is not valid JSON ({err}): not an adademo-run state; use another run folder"
+        ) from None
+    if (
+        not isinstance(state, dict)
+        or not isinstance(state.get("settings"), dict)
+        or not isinstance(state.get("done"), dict)
+    ):
+        raise AdaDemoError(
+            f"{path} holds no run settings and stages: not an adademo-run state; use another run folder"
+        )
+    return state
+
+
 class RunState:
     """Finished stages of a run, plus the settings that define it (a rerun must keep them). `on_stage` hears
     `[done] NAME` for a stage an earlier invocation finished and `[run]  NAME` for one that runs (the command
@@ -28,8 +51,8 @@ class RunState:
     def __init__(self, run_dir: Path, settings: dict, on_stage: Callable[[str], None] | None = None):
         self.path = run_dir / "run_state.json"
         self._on_stage = on_stage or (lambda line: None)
-        if self.path.exists():
-            state = json.loads(self.path.read_text())
+        state = read_run_state(run_dir)
+        if state is not None:
             for key, default in SETTINGS_ADDED_LATER.items():  # a run started before the setting existed
                 state["settings"].setdefault(key, default)
             for name, defaults in config_field_defaults(settings).items():
@@ -139,10 +162,9 @@ def config_field_defaults(settings: dict) -> dict[str, dict]:
 
 def saved_stage(run_dir: Path, name: str) -> dict | None:
     """A finished stage of an earlier invocation of this run (read only)."""
-    path = run_dir / "run_state.json"
-    if not path.exists():
+    state = read_run_state(run_dir)
+    if state is None:
         return None
-    state = json.loads(path.read_text())
     return {**state["done"][name], "settings": state["settings"]} if name in state["done"] else None
 
 

@@ -105,9 +105,11 @@ def locate_dataset(args: StartDatasetArgs) -> tuple[Path, str | None]:
         )
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    from adademo_lerobot.dataset.video import video_backend
+
     def download():
         try:
-            return LeRobotDataset(args.repo_id, revision=args.revision)
+            return LeRobotDataset(args.repo_id, revision=args.revision, video_backend=video_backend())
         except RuntimeError as err:  # LeRobot: no dataset-format version tag on the repo
             raise AdaDemoError(
                 f"dataset {args.repo_id}: {' '.join(str(err).split())[:300]} (pass --dataset.revision=main to "
