@@ -195,7 +195,9 @@ def test_bad_input_gets_one_clear_error_and_no_change(tmp_path, reach_push_datas
 
     blocker = tmp_path / "a-file"
     blocker.write_text("not a folder")
-    fails("--suite.tasks=reach-v3", f"--dataset.root={blocker / 'ds'}", match="not a writable folder")
+    fails(
+        "--suite.tasks=reach-v3", f"--dataset.root={blocker / 'ds'}", match="a-file is a file, not a folder"
+    )
     if os.geteuid() != 0:  # root ignores permission bits
         ro = tmp_path / "ro"
         ro.mkdir(mode=0o500)

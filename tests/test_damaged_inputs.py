@@ -16,8 +16,7 @@ from conftest import assert_cli_error
 from adademo_lerobot.core.errors import AdaDemoError
 from adademo_lerobot.core.files import check_writable_location
 from adademo_lerobot.evaluation.policy import check_checkpoint_folder
-from adademo_lerobot.executors import ExecutionArgs, check_torch_device
-from adademo_lerobot.executors.ray_executor import unreachable_head
+from adademo_lerobot.executors import ExecutionArgs, check_torch_device, unreachable_head
 from adademo_lerobot.loop.run_state import read_run_state
 
 QUICKSTART = Path(__file__).resolve().parents[1] / "recipes" / "quickstart.yaml"

@@ -153,7 +153,11 @@ def test_a_readout_the_policy_cannot_act_by_is_refused(tmp_path):
     checkpoint = tmp_path / "diffusion"
     checkpoint.mkdir()
     DiffusionConfig(horizon=16, n_obs_steps=2, n_action_steps=8)._save_pretrained(checkpoint)
-    (checkpoint / "model.safetensors").write_bytes(b"")  # only the config is read
+    from safetensors.numpy import save_file
+
+    save_file(
+        {"x": np.zeros(1, dtype=np.float32)}, checkpoint / "model.safetensors"
+    )  # only the config is read
     with pytest.raises(AdaDemoError, match="a diffusion policy has no such setting"):
         check_readout(checkpoint, {"temporal_ensemble_coeff": 0.01}, tmp_path / "out")
     with pytest.raises(AdaDemoError, match="this policy predicts 15 actions .* pass at most 15"):

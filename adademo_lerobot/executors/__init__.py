@@ -11,6 +11,7 @@ the unit's seeds), so both give the same results whatever the number of workers 
 
 from __future__ import annotations
 
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
@@ -217,6 +218,21 @@ def check_torch_device(device: str) -> None:
         raise AdaDemoError(f"--device={device}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
+def unreachable_head(address: str | None, timeout: float = 5.0) -> str | None:
+    """Why nothing accepts connections at a `HOST:PORT` (or `ray://HOST:PORT`) head address, or None (it does, or
+    the address is `auto`, `local` or none: Ray finds or starts a cluster itself)."""
+    if not address or address in ("auto", "local"):
+        return None
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return f"{address!r} is not HOST:PORT"
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout):
+            return None
+    except OSError as err:
+        return err.strerror or type(err).__name__
+
+
 def check_executor_args(executor: str, ray: RayArgs) -> None:
     if executor not in EXECUTORS:
         raise AdaDemoError(f"unknown --executor={executor!r}; choose one of {', '.join(EXECUTORS)}")
@@ -230,6 +246,12 @@ def check_executor_args(executor: str, ray: RayArgs) -> None:
         if importlib.util.find_spec("ray") is None:
             raise AdaDemoError(
                 "--executor=ray needs Ray, which is not installed: pip install 'adademo-lerobot[ray]'"
+            )
+        if why := unreachable_head(ray.address):
+            # ray.init would wait a minute or more for a head that is not there, printing only its own lines.
+            raise AdaDemoError(
+                f"cannot reach the Ray cluster at --ray.address={ray.address}: {why}; start it (ray start --head) "
+                "or fix the address"
             )
 
 

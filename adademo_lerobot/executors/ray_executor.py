@@ -234,21 +234,6 @@ class RayUnit:
         return self.call.ready()
 
 
-def unreachable_head(address: str | None, timeout: float = 5.0) -> str | None:
-    """Why nothing accepts connections at a `HOST:PORT` (or `ray://HOST:PORT`) head address, or None (it does, or
-    the address is `auto`, `local` or none: Ray finds or starts a cluster itself)."""
-    if not address or address in ("auto", "local"):
-        return None
-    host, _, port = address.removeprefix("ray://").rpartition(":")
-    if not host or not port.isdigit():
-        return f"{address!r} is not HOST:PORT"
-    try:
-        with socket.create_connection((host, int(port)), timeout=timeout):
-            return None
-    except OSError as err:
-        return err.strerror or type(err).__name__
-
-
 class RayExecutor:
     parallel_tasks = True
 
@@ -259,12 +244,6 @@ class RayExecutor:
 
         self.batch_size = batch_size
         self._started_ray = not ray.is_initialized()
-        if self._started_ray and (why := unreachable_head(args.address)):
-            # ray.init would wait a minute or more for a head that is not there, printing only its own lines.
-            raise AdaDemoError(
-                f"cannot reach the Ray cluster at --ray.address={args.address}: {why}; start it (ray start --head) "
-                "or fix the address"
-            )
         if self._started_ray:
             # ray.init makes SIGTERM exit at once (status 15, no message, no held training step): the caller's
             # handler comes back after it.

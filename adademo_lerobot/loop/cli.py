@@ -36,6 +36,7 @@ from adademo_lerobot.core.errors import AdaDemoError, MachineError, machine_caus
 from adademo_lerobot.core.interrupts import command_starts, raise_keyboard_interrupt
 from adademo_lerobot.core.plugins import import_plugins
 from adademo_lerobot.loop.configs import LEROBOT_CHOICE
+from adademo_lerobot.loop.recipe_file import check_recipe_file
 
 
 def lerobot_choice_type(kind: str) -> type:
@@ -260,34 +261,6 @@ def in_flags(message: str) -> str:
     return f"{', '.join(flags)} {'is' if len(flags) == 1 else 'are'} required"
 
 
-def check_config_path(argv: list[str]) -> None:
-    """A recipe that is not there, or is not a YAML mapping of settings, is refused in one line that names the flag
-    (not an error from deep in draccus)."""
-    import yaml
-
-    config_path, _ = _pop_arg("config_path", argv)
-    if config_path is None:
-        return
-    example = "give a recipe's YAML file (e.g. recipes/quickstart.yaml)"
-    if not Path(config_path).is_file():
-        what = "a folder" if Path(config_path).is_dir() else "no such file"
-        raise AdaDemoError(f"--config_path={config_path}: {what}; {example}")
-    try:
-        content = yaml.safe_load(Path(config_path).read_text())
-    except UnicodeDecodeError:
-        raise AdaDemoError(f"--config_path={config_path} is not a text file; {example}") from None
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(err, "problem", None) or str(err)
-        raise AdaDemoError(f"--config_path={config_path} is not valid YAML: {problem}{where}") from None
-    if not isinstance(content, dict):
-        what = "empty" if content is None else f"a YAML {type(content).__name__}"
-        raise AdaDemoError(
-            f"--config_path={config_path} is {what}, not a mapping of settings (suite:, train:, ...); {example}"
-        )
-
-
 def one_line_usage_errors(parse: Callable, *args) -> Any:
     """`parse(*args)`, with argparse's usage error (an unknown flag, an invalid choice: usage text, then
     `prog: error: ...`, exit 2) turned into our one `error:` line. Help and anything else pass through."""
@@ -358,7 +331,7 @@ def run_command(
             # Before any flag is read: a plugin's strategy, suite or expert parses as a built-in one.
             import_plugins(sys.path)
             check_moved_flags(config_cls, argv)
-            check_config_path(argv)
+            check_recipe_file(_pop_arg("config_path", argv)[0])
             cfg = one_line_usage_errors(parse_light, config_cls, argv, lerobot_config is not None)
             if hasattr(cfg, "validate"):
                 cfg.validate()

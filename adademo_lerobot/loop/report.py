@@ -41,25 +41,13 @@ from adademo_lerobot.loop.report_plots import (
     plot_success_vs_cost,
     plot_success_vs_demos,
 )
-from adademo_lerobot.loop.run_results import RunResults
+from adademo_lerobot.loop.run_results import RunResults, describe_start
 from adademo_lerobot.loop.run_state import read_run_state
 
 
 def has_interventions(root: Path | None) -> bool:
     """Whether a run's dataset has LeRobot's DAgger `intervention` flags (its person's work is reported)."""
     return root is not None and has_dataset(root) and intervention_flags(root) is not None
-
-
-def describe_start(begun: dict) -> str:
-    if not begun:
-        return ""
-    dataset, policy = begun["origin"]["dataset"], begun["origin"]["policy"]
-    at = f" at {dataset['commit'][:8]}" if dataset.get("commit") else f" ({dataset['root']})"
-    text = f"Started from dataset {dataset['repo_id']}{at}, rounds 0..{begun['base_round']} of it"
-    if policy:
-        at = f" at {policy['commit'][:8]}" if policy.get("commit") else ""
-        text += f", and checkpoint {policy['path']}{at} (round 0 below)"
-    return text + "."
 
 
 def load_run(run_dir: Path) -> RunResults:

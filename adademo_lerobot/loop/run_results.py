@@ -44,3 +44,15 @@ class RunResults:
         out["episodes"] = out["expert episodes"] + out["rollouts"]
         out["episodes high"] = out["expert episodes high"] + out["rollouts"]
         return out
+
+
+def describe_start(begun: dict) -> str:
+    if not begun:
+        return ""
+    dataset, policy = begun["origin"]["dataset"], begun["origin"]["policy"]
+    at = f" at {dataset['commit'][:8]}" if dataset.get("commit") else f" ({dataset['root']})"
+    text = f"Started from dataset {dataset['repo_id']}{at}, rounds 0..{begun['base_round']} of it"
+    if policy:
+        at = f" at {policy['commit'][:8]}" if policy.get("commit") else ""
+        text += f", and checkpoint {policy['path']}{at} (round 0 below)"
+    return text + "."
