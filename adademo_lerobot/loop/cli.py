@@ -361,11 +361,13 @@ def run_command(
     except FileNotFoundError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
-    # An import that fails mid-run: e.g. the package upgraded under a long command, then a module first imported.
+    # An import that fails: a package missing (a robot's SDK, an optional extra), or upgraded under a long command
+    # before one of its modules was first imported.
     except ImportError as err:
         print(
-            f"error: {' '.join(str(err).split())}: the installed packages changed while the command ran, or one is "
-            "missing; reinstall from the lock if needed (bash setup.sh) and run the same command to resume",
+            f"error: {' '.join(str(err).split())}: a package is missing, or the installed packages changed while "
+            "the command ran; install it (or reinstall from the lock: bash setup.sh) and run the same command to "
+            "resume",
             file=sys.stderr,
         )
         sys.exit(1)
