@@ -142,6 +142,7 @@ def test_a_ray_head_nothing_listens_at_is_refused_at_once(tmp_path):
     "command, args, message",
     [
         ("adademo-collect", ["--commit_every=0"], "--commit_every must be >= 1, got 0"),
+        ("adademo-expand", ["--commit_every=0"], "--commit_every must be >= 1, got 0"),
         (
             "adademo-run",
             ["--eval.episodes_per_task=0"],
@@ -155,6 +156,11 @@ def test_counts_below_one_are_refused_by_every_command_that_takes_them(command, 
             "--suite.tasks=reach-v3",
             "--dataset.repo_id=local/x",
             f"--dataset.root={tmp_path}/ds",
+        ],
+        "adademo-expand": [
+            "--dataset.repo_id=local/x",
+            f"--dataset.root={tmp_path}/ds",
+            f"--policy.path={tmp_path}/ckpt",
         ],
         "adademo-run": [f"--config_path={QUICKSTART}", f"--run_dir={tmp_path}/run"],
     }[command]

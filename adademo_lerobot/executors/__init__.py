@@ -197,11 +197,12 @@ def check_torch_device(device: str) -> None:
     import torch
 
     try:
-        kind = torch.device(device).type
+        parsed = torch.device(device)
     except RuntimeError:
         raise AdaDemoError(
             f"--device={device!r} is not a torch device; use cpu, cuda, cuda:N or mps"
         ) from None
+    kind = parsed.type
     available = {
         "cpu": True,
         "cuda": torch.cuda.is_available(),
@@ -213,8 +214,7 @@ def check_torch_device(device: str) -> None:
         raise AdaDemoError(
             f"--device={device}: torch finds no {kind} device on this machine; use --device=cpu"
         )
-    index = torch.device(device).index
-    if kind == "cuda" and index is not None and index >= torch.cuda.device_count():
+    if kind == "cuda" and parsed.index is not None and parsed.index >= torch.cuda.device_count():
         raise AdaDemoError(f"--device={device}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 

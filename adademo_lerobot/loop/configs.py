@@ -44,7 +44,19 @@ def default_collector() -> CollectorConfig:
 
 
 @dataclass
-class CollectConfig(ExecutionArgs):
+class CommitArgs:
+    """The flag of every command that commits demonstrations to the dataset as it collects them."""
+
+    # Demonstrations buffered in memory between dataset commits (a kill loses at most these).
+    commit_every: int = 10
+
+    def validate_commits(self) -> None:
+        if self.commit_every < 1:
+            raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
+
+
+@dataclass
+class CollectConfig(CommitArgs, ExecutionArgs):
     suite: SuiteConfig = field(default_factory=default_suite)
     collector: CollectorConfig = field(default_factory=default_collector)
     dataset: DatasetArgs = field(default_factory=DatasetArgs)
@@ -52,12 +64,9 @@ class CollectConfig(ExecutionArgs):
     episodes_per_task: int = 10
     seed: int = 0
     resume: bool = False
-    # Episodes buffered in memory between dataset commits (a kill loses at most these).
-    commit_every: int = 10
 
     def validate(self) -> None:
-        if self.commit_every < 1:
-            raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
+        self.validate_commits()
 
 
 @dataclass
@@ -177,7 +186,7 @@ PLAN_EPISODES_PER_TASK = 20
 
 
 @dataclass
-class RoundArgs(ExecutionArgs):
+class RoundArgs(CommitArgs, ExecutionArgs):
     """How an expansion round runs: adademo-expand's flags for its round and adademo-run's for each of its rounds
     (declared once: `RunConfig` hands them on as they are)."""
 
@@ -194,8 +203,6 @@ class RoundArgs(ExecutionArgs):
     # Keep the round's successful policy rollouts in the dataset too (`adademo/source=policy`; they cost no
     # episode the round did not run). Training draws them with --train.autonomous_weight (0: kept, not drawn).
     keep_successes: bool = False
-    # Demonstrations buffered in memory between dataset commits (a kill loses at most these).
-    commit_every: int = 10
 
     def validate_round(self) -> None:
         """The flags alone (answered before LeRobot is imported), whatever the number of rounds."""
@@ -213,8 +220,7 @@ class RoundArgs(ExecutionArgs):
                 f"{self.strategy.type} runs none: use a strategy that evaluates (adademo, budgeted, task_only) "
                 "or drop --keep_successes"
             )
-        if self.commit_every < 1:
-            raise AdaDemoError(f"--commit_every must be >= 1, got {self.commit_every}")
+        self.validate_commits()
         self.validate_execution()
 
 
