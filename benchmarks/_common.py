@@ -71,8 +71,9 @@ def avx2_kernels() -> dict[str, str]:
     reduction order, the same bits on every Intel AVX2 CPU, MKL's documented guarantee). On the 2-core Intel Xeon of
     2026-12-07 it trains the same weights bit for bit as the pin without it. MKL gives no such guarantee on other
     vendors' CPUs (there MKL_CBWR=AVX2 falls back to its own dispatch), so AMD machines keep the plain pin and
-    reproduce their earlier runs; MKL, torch's BLAS, is the likeliest reason an AMD EPYC and this Xeon trained
-    different Adroit round-0 policies from the same demonstrations (not verified on an EPYC)."""
+    reproduce their earlier runs. AMD and Intel CPUs train different weights under every setting measured
+    (kernel_reproducibility.md: the pin, MKL_CBWR=AVX2 and MKL_CBWR=COMPATIBLE, an AVX-512 EPYC against the Xeon,
+    2026-12-08), so runs pair only with runs of their own CPU vendor."""
     cpuinfo = Path("/proc/cpuinfo")
     intel = cpuinfo.exists() and "GenuineIntel" in cpuinfo.read_text()
     return {**AVX2_KERNELS, "MKL_CBWR": "AVX2"} if intel else dict(AVX2_KERNELS)

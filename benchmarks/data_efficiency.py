@@ -632,9 +632,9 @@ def phase_report(seeds: list[int], arms: list[str]) -> None:
         f"Command: `python benchmarks/data_efficiency.py arms --seeds S.. --arms A.. --summaries {SUMMARIES.name}` "
         f"(two drivers, `--torch_threads 1`), then `report --summaries {SUMMARIES.name}`; report "
         f"{machine_line().split(';')[0]}; runs on {' / '.join(machines)} (each run's date in its summary under "
-        f"`results/{SUMMARIES.name}/`). Runs of one CPU type only, or an AVX-512 machine's with its kernels pinned "
-        "to AVX2 (`--cpu_isa`) where their round 0 equals the AVX2 machine's: trained policies differ across "
-        "CPUs, so seeds are paired only within a folder.",
+        f"`results/{SUMMARIES.name}/`). Trained policies differ across CPU vendors, so each seed's arms run on "
+        "one kind of CPU (their shared round 0 says so: an arm whose round 0 differs from Uniform's is left out); "
+        "seeds may come from different kinds, each paired within itself.",
         f"Recipe {', '.join(f'`{r}`' for r in recipes)} (tasks {', '.join(tasks)}): per seed every arm branches from one shared "
         "round 0 (dataset, policy, evaluation), trains each round from scratch with the same training seed, and is "
         "evaluated on the same fixed initial states; arms differ only in the flags of the script's `ALL_ARMS`.",
@@ -706,7 +706,7 @@ def main() -> None:
     parser.add_argument(
         "--summaries",
         default=SUMMARIES.name,
-        help="folder under benchmarks/results for the summaries (runs of one machine, paired by seed)",
+        help="folder under benchmarks/results for the summaries (paired by seed; a seed's arms on one kind of CPU)",
     )
     parser.add_argument(
         "--test_states",

@@ -1,7 +1,7 @@
 """The data-efficiency report: success against what each arm paid, per seed, paired with Uniform.
 
 Read from the committed summaries (`benchmarks/results/<folder>/seed<S>-<arm>.json`, one per finished arm and
-seed, all from one machine): every arm's curve of average success against the cost it added per task after the
+seed, a seed's arms all from one kind of CPU): every arm's curve of average success against the cost it added per task after the
 shared round 0, in demonstrations, expert frames (env steps under the expert's control, failed attempts included)
 and episodes (what a person resets the scene for: expert episodes, kept or failed, and policy rollouts; the
 cost model is `adademo_lerobot/core/costs.py`). From the curves, per seed:

@@ -211,7 +211,8 @@ def test_eval_bad_input(act_run, reach_push_dataset, tmp_path):
         f"--policy.path={ckpt}",
         "--suite.tasks=reach-v3,push-v3,drawer-open-v3",
         f"--output_dir={tmp_path}/o",
-        match="observation.environment_state",
+        match="do not match the suite's observations and actions: observation.environment_state shape (41,) in "
+        "the checkpoint vs (42,) in the suite's",
     )
     # A dataset's suite decides; suite flags that contradict it are refused, not ignored.
     dataset = f"--dataset.root={reach_push_dataset}"

@@ -319,7 +319,11 @@ def test_bad_input_gets_one_error_and_no_change(recorded, reach_push_dataset, ac
         match="no_such_leader",
     )
     sim_policy = act_run / "checkpoints" / "last" / "pretrained_model"  # trained on a suite dataset
-    assert_cli_error("adademo-record", *record_args(root, sim_policy), match="features do not match")
+    assert_cli_error(
+        "adademo-record",
+        *record_args(root, sim_policy),
+        match="features do not match the robot's observations",
+    )
     assert_cli_error(
         "adademo-record",
         *record_args(reach_push_dataset, checkpoint),

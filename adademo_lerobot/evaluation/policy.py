@@ -88,31 +88,36 @@ def load_policy(path: str | Path, device: str = "cpu") -> LoadedPolicy:
     return LoadedPolicy(policy, pre, post, cfg, path)
 
 
-def check_policy_matches_features(policy_cfg, features: dict[str, dict]) -> None:
-    """A checkpoint must read and write exactly these dataset features (names and shapes)."""
+def check_policy_matches_features(
+    policy_cfg, features: dict[str, dict], source: str = "the suite's observations and actions"
+) -> None:
+    """A checkpoint must read and write exactly these dataset features (names and shapes); `source` names where
+    they come from in the message."""
     from lerobot.utils.feature_utils import dataset_to_policy_features
 
     available = dataset_to_policy_features(features)
     problems = []
     for key, ft in {**policy_cfg.input_features, **policy_cfg.output_features}.items():
         if key not in available:
-            problems.append(f"{key} (not in the dataset)")
+            problems.append(f"{key} (not in {source})")
         elif tuple(available[key].shape) != tuple(ft.shape):
             problems.append(
-                f"{key} shape {tuple(ft.shape)} in the checkpoint vs {tuple(available[key].shape)} in the dataset"
+                f"{key} shape {tuple(ft.shape)} in the checkpoint vs {tuple(available[key].shape)} in {source}"
             )
     if problems:
-        raise AdaDemoError("the checkpoint's features do not match the dataset: " + "; ".join(problems))
+        raise AdaDemoError(f"the checkpoint's features do not match {source}: " + "; ".join(problems))
 
 
-def check_policy(path: str | Path, features: dict[str, dict]):
-    """Refuse a checkpoint that is missing or does not match `features`, reading only its config (the workers
-    load the weights). Returns the config."""
+def check_policy(
+    path: str | Path, features: dict[str, dict], source: str = "the suite's observations and actions"
+):
+    """Refuse a checkpoint that is missing or does not match `features` (from `source`), reading only its config
+    (the workers load the weights). Returns the config."""
     path = check_checkpoint_folder(path)
     cfg = read_policy_config(path)
     if cfg.type not in POLICY_TYPES:
         raise AdaDemoError(f"{path} holds a {cfg.type!r} policy; adademo supports {', '.join(POLICY_TYPES)}")
-    check_policy_matches_features(cfg, features)
+    check_policy_matches_features(cfg, features, source)
     return cfg
 
 

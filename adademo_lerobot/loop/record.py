@@ -190,7 +190,7 @@ def run_record(cfg: RecordConfig) -> list[TaskRoundRecord]:
     features = robot_features(robot, use_video)
     check_recorded_with(root, robot, features)
     check_writable_features(root, features, "adademo-record")  # e.g. LeRobot's DAgger `intervention`: carried
-    check_policy(cfg.policy.path, features)
+    check_policy(cfg.policy.path, features, "the robot's observations and actions")
     known = dataset_tasks(root)
     tasks = [t.strip() for t in cfg.tasks.split(",")] if cfg.tasks else known
     unknown = [t for t in tasks if t not in known]

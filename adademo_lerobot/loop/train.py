@@ -398,7 +398,7 @@ def build_policy(cfg: AdaDemoTrainConfig, dataset):
     from lerobot.policies.factory import make_policy, make_pre_post_processors
 
     if cfg.policy.pretrained_path is not None:
-        check_policy_matches_features(cfg.policy, dataset.meta.features)
+        check_policy_matches_features(cfg.policy, dataset.meta.features, "the dataset")
     low_dim = [
         k
         for k, ft in dataset.meta.features.items()
