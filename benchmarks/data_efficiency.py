@@ -67,6 +67,7 @@ import argparse
 import fcntl
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -285,6 +286,42 @@ def ensure_base(out: Path, seed: int) -> Path:
         if not (base / "eval" / "round-000" / "eval_summary.json").exists():
             adademo_run(base, "--rounds=0", *seed_flags(seed), *BASE_FLAGS)
     return base
+
+
+def cpu_of(machine: str) -> str:
+    """The CPU a summary's (or this machine's) machine line names."""
+    found = re.search(r"machine: (.*?), \d+ CPU cores", machine)
+    return found.group(1) if found else machine
+
+
+def check_seed_pairs_here(seed: int, base: Path | None = None) -> None:
+    """Refuse to run seed `seed` here if its arms would not pair with the ones already summarised for it: another
+    vendor's CPU trains other policies from the same demonstrations under every kernel setting measured
+    (kernel_reproducibility.md), and one vendor's machines may too, which the round 0 of `base` shows once it is
+    built. An arm from another round 0 would be left out of the report, hours later."""
+    here = cpu_of(machine_line())
+    vendor = next((v for v in ("AMD", "Intel") if v in here), here)
+    for path in sorted(SUMMARIES.glob(f"seed{seed}-*.json")):
+        summary = json.loads(path.read_text())
+        there = cpu_of(summary["machine"])
+        where = f"{SUMMARIES.name}/{path.name} ran on {there}"
+        if vendor not in there:
+            sys.exit(
+                f"error: {where} and this machine is {here}: another vendor's CPU trains other policies from "
+                f"the same demonstrations, so seed {seed}'s arms run here would not pair with it; run seed {seed} "
+                f"on a machine like that one, or a new seed here"
+            )
+        if base is None:
+            continue
+        ours = eval_table(base, 0)
+        theirs = {task: rates[0] for task, rates in summary["success"].items()}
+        if ours != theirs:
+            sys.exit(
+                f"error: seed {seed}'s round 0 built here ({100 * sum(ours.values()) / len(ours):.1f} %) differs "
+                f"from the one {where} started from ({100 * sum(theirs.values()) / len(theirs):.1f} %): this "
+                f"machine trains other policies, so its arms would not pair; run seed {seed} on a machine like "
+                f"that one, or a new seed here ({base} is kept)"
+            )
 
 
 def branch_from_base(base: Path, arm_dir: Path, flags: list[str]) -> None:
@@ -535,7 +572,9 @@ def phase_status(out: Path) -> None:
 
 def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
     for seed in seeds:
+        check_seed_pairs_here(seed)
         base = ensure_base(out, seed)
+        check_seed_pairs_here(seed, base)
         for arm in arms:
             arm_dir = out / f"seed{seed}" / arm
             flags = [*ALL_ARMS[arm], *seed_flags(seed)]

@@ -2,7 +2,9 @@
 adademo-run leaves (its run state and each round's evaluation summary)."""
 
 import json
+import re
 
+import pytest
 from conftest import load_benchmark
 
 bench = load_benchmark("data_efficiency")
@@ -49,6 +51,41 @@ def test_status_lists_each_run_with_its_rounds_and_added_demonstrations(tmp_path
         "| seed1 | uniform | finished | 37.5 -> 50.0 -> 75.0 -> 100.0 | 18 | 1.2 |",
         "| seed2 | adademo | train-1 done | 25.0 | 3 | 0.3 |",  # the copy of a branch in progress is left out
     ]
+
+
+def uniform_summary(seed: int, machine: str, round0: tuple[float, float]) -> str:
+    return json.dumps(
+        {
+            "arm": "uniform",
+            "seed": seed,
+            "machine": machine,
+            "success": {t: [r, 0.9] for t, r in zip("ab", round0, strict=True)},
+        }
+    )
+
+
+def test_a_seed_runs_only_where_its_arms_pair_with_the_ones_summarised(tmp_path, monkeypatch):
+    """Another vendor's CPU trains other policies: refused before hours go into a base; on this machine's kind the
+    base is built, then its round 0 must equal the one the seed's summaries started from."""
+    here = bench.machine_line()
+    other = "Intel(R) Xeon(R) Processor" if "AMD" in bench.cpu_of(here) else "AMD EPYC"
+    summaries = tmp_path / "summaries"
+    summaries.mkdir()
+    monkeypatch.setattr(bench, "SUMMARIES", summaries)
+    elsewhere = f"date 2026-12-07; machine: x86_64 {other} (AVX-512), 2 CPU cores, Python 3.12.1"
+    (summaries / "seed1-uniform.json").write_text(uniform_summary(1, elsewhere, (0.5, 0.25)))
+    (summaries / "seed2-uniform.json").write_text(uniform_summary(2, here, (0.5, 0.25)))
+    with pytest.raises(
+        SystemExit, match=f"seed1-uniform.json ran on x86_64 {re.escape(other)} .*another vendor"
+    ):
+        bench.check_seed_pairs_here(1)
+    bench.check_seed_pairs_here(2)  # this machine's kind: its base may be built, then compared
+    bench.check_seed_pairs_here(3)  # a new seed
+    run_folder(tmp_path / "seed2" / "base", {}, [(0.5, 0.25)])
+    bench.check_seed_pairs_here(2, tmp_path / "seed2" / "base")
+    run_folder(tmp_path / "rebuilt" / "base", {}, [(0.5, 0.3)])
+    with pytest.raises(SystemExit, match=r"round 0 built here \(40.0 %\) differs from the one .* \(37.5 %\)"):
+        bench.check_seed_pairs_here(2, tmp_path / "rebuilt" / "base")
 
 
 def test_every_committed_summary_names_the_recipe_that_runs_its_tasks():
