@@ -66,17 +66,49 @@ AVX2_KERNELS = {
 }
 
 
-def avx2_kernels() -> dict[str, str]:
-    """AVX2_KERNELS, and on an Intel CPU MKL's reproducible AVX2 branch (MKL_CBWR=AVX2: fixed cache sizes and
-    reduction order, the same bits on every Intel AVX2 CPU, MKL's documented guarantee). On the 2-core Intel Xeon of
-    2026-12-07 it trains the same weights bit for bit as the pin without it. MKL gives no such guarantee on other
-    vendors' CPUs (there MKL_CBWR=AVX2 falls back to its own dispatch), so AMD machines keep the plain pin and
-    reproduce their earlier runs. AMD and Intel CPUs train different weights under every setting measured
-    (kernel_reproducibility.md: the pin, MKL_CBWR=AVX2 and MKL_CBWR=COMPATIBLE, an AVX-512 EPYC against the Xeon,
-    2026-12-08), so runs pair only with runs of their own CPU vendor."""
+MKL_INTEL_PATH_SOURCE = ROOT / "benchmarks" / "mkl_intel_path.c"
+
+
+def mkl_intel_path() -> Path:
+    """The shim that makes MKL take its Intel kernels on an AMD CPU (mkl_intel_path.c), built once with the
+    machine's C compiler into ~/.cache/adademo-lerobot."""
+    built = Path.home() / ".cache" / "adademo-lerobot" / "mkl_intel_path.so"
+    if not built.exists() or built.stat().st_mtime < MKL_INTEL_PATH_SOURCE.stat().st_mtime:
+        built.parent.mkdir(parents=True, exist_ok=True)
+        tmp = built.with_suffix(".so.tmp")
+        try:
+            proc = subprocess.run(
+                ["cc", "-shared", "-fPIC", "-O2", "-o", str(tmp), str(MKL_INTEL_PATH_SOURCE)],
+                capture_output=True,
+                text=True,
+            )
+        except FileNotFoundError:
+            sys.exit(
+                "error: on an AMD CPU the benchmarks' kernels need a C compiler to build MKL's Intel path "
+                "(apt-get install gcc), or --cpu_isa avx2_own_mkl for MKL's own AMD kernels"
+            )
+        if proc.returncode != 0:
+            sys.exit(f"error: cc could not build {MKL_INTEL_PATH_SOURCE.name}: {proc.stderr.strip()[-500:]}")
+        tmp.rename(built)
+    return built
+
+
+def amd_cpu() -> bool:
     cpuinfo = Path("/proc/cpuinfo")
-    intel = cpuinfo.exists() and "GenuineIntel" in cpuinfo.read_text()
-    return {**AVX2_KERNELS, "MKL_CBWR": "AVX2"} if intel else dict(AVX2_KERNELS)
+    return cpuinfo.exists() and "AuthenticAMD" in cpuinfo.read_text()
+
+
+def avx2_kernels() -> dict[str, str]:
+    """AVX2_KERNELS with MKL's reproducible AVX2 branch (MKL_CBWR=AVX2: fixed cache sizes and reduction order, the
+    same bits on every Intel AVX2 CPU, MKL's documented guarantee), and on an AMD CPU the shim that makes MKL take
+    that Intel branch there too (mkl_intel_path.c): an AVX-512 AMD EPYC then trains digest for digest what the
+    Intel Xeon of 2026-12-07 trained, where without the shim no setting did, MKL's cross-vendor
+    MKL_CBWR=COMPATIBLE included (kernel_reproducibility.md, 2026-12-08). On that Xeon the branch trains the same
+    weights bit for bit as the plain pin."""
+    kernels = {**AVX2_KERNELS, "MKL_CBWR": "AVX2"}
+    if amd_cpu():
+        kernels["LD_PRELOAD"] = " ".join(filter(None, [str(mkl_intel_path()), os.environ.get("LD_PRELOAD")]))
+    return kernels
 
 
 def machine_line() -> str:
@@ -94,6 +126,8 @@ def machine_line() -> str:
     cpu += " (AVX-512)" if "avx512f" in flags else " (AVX2)" if "avx2" in flags else ""
     if "avx512f" in flags and os.environ.get("ATEN_CPU_CAPABILITY") == AVX2_KERNELS["ATEN_CPU_CAPABILITY"]:
         cpu = cpu.replace("(AVX-512)", "(AVX-512, kernels pinned to AVX2)")
+    if "mkl_intel_path" in os.environ.get("LD_PRELOAD", ""):
+        cpu = cpu[:-1] + ", MKL's Intel path)" if cpu.endswith(")") else cpu + " (MKL's Intel path)"
     versions = ", ".join(f"{p} {metadata.version(p)}" for p in ("lerobot", "torch", "mujoco", "metaworld"))
     return (
         f"date {time.strftime('%Y-%m-%d')}; machine: {platform.machine()} {cpu}, {os.cpu_count()} CPU cores, "

@@ -41,11 +41,13 @@ benchmark chose (select, noise); the arms differ only in strategy and sampler:
     costed_probe_keep  costed_probe + --keep_successes=true --train.autonomous_weight=1 (its successful
                        rollouts kept as data, each drawn as a demonstration)
 
-`--cpu_isa avx2` (the default) pins the runs' numeric kernels to AVX2, so that machines with and without AVX-512
-train closer policies (equal on MT10 seeds 0 and 1, not on seed 2: compare round 0 before pairing their summaries;
-`native`: the machine's own kernels; the summary's machine line says which). On an Intel CPU it also sets MKL's
-reproducible AVX2 branch (`MKL_CBWR=AVX2`, the same bits on every Intel AVX2 CPU); `kernel_reproducibility.py`
-says in a few minutes whether a machine trains the same weights as the ones that ran the committed summaries.
+`--cpu_isa avx2` (the default) pins the runs' numeric kernels to AVX2 and MKL's to its reproducible Intel AVX2
+branch (`MKL_CBWR=AVX2`), on an AMD CPU through a preloaded shim that tells MKL it runs on an Intel one
+(`mkl_intel_path.c`): an AVX-512 AMD EPYC then trains the same weights as an Intel Xeon, digest for digest. Without the
+shim (`avx2_own_mkl`, what AMD machines ran before 2026-12-08: the AMD-only folders' runs) AMD and Intel CPUs train
+other policies from the same data; `native`: the machine's own kernels. The summary's machine line says which;
+`kernel_reproducibility.py` says in a few minutes whether a machine trains the same weights as the ones that ran
+the committed summaries, and `arms` compares a rebuilt round 0 with the seed's summaries before any arm runs.
 
 `--test_states per_seed` evaluates each seed on its own fixed states (--eval.seed=100+seed), so that the intervals
 over seeds include the sampling of the test states; `shared` (the default, and every folder written before it)
@@ -73,7 +75,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from _common import BIN, RESULTS, ROOT, avx2_kernels, machine_line
+from _common import AVX2_KERNELS, BIN, RESULTS, ROOT, avx2_kernels, machine_line
 
 from adademo_lerobot.core.tables import table
 from adademo_lerobot.evaluation.policy import READOUT_FIELDS
@@ -294,22 +296,27 @@ def cpu_of(machine: str) -> str:
     return found.group(1) if found else machine
 
 
+def mkl_kernels(cpu: str) -> str:
+    """Which of MKL's kernels a machine line's CPU ran: Intel's on an Intel CPU or through the shim, else its own."""
+    return "Intel" if "Intel" in cpu or "MKL's Intel path" in cpu else "AMD" if "AMD" in cpu else cpu
+
+
 def check_seed_pairs_here(seed: int, base: Path | None = None) -> None:
-    """Refuse to run seed `seed` here if its arms would not pair with the ones already summarised for it: another
-    vendor's CPU trains other policies from the same demonstrations under every kernel setting measured
-    (kernel_reproducibility.md), and one vendor's machines may too, which the round 0 of `base` shows once it is
-    built. An arm from another round 0 would be left out of the report, hours later."""
+    """Refuse to run seed `seed` here if its arms would not pair with the ones already summarised for it: MKL's
+    AMD kernels train other policies than its Intel ones from the same demonstrations (kernel_reproducibility.md),
+    and two machines may differ otherwise, which the round 0 of `base` shows once it is built. An arm from another
+    round 0 would be left out of the report, hours later."""
     here = cpu_of(machine_line())
-    vendor = next((v for v in ("AMD", "Intel") if v in here), here)
     for path in sorted(SUMMARIES.glob(f"seed{seed}-*.json")):
         summary = json.loads(path.read_text())
         there = cpu_of(summary["machine"])
         where = f"{SUMMARIES.name}/{path.name} ran on {there}"
-        if vendor not in there:
+        if mkl_kernels(there) != mkl_kernels(here):
             sys.exit(
-                f"error: {where} and this machine is {here}: another vendor's CPU trains other policies from "
-                f"the same demonstrations, so seed {seed}'s arms run here would not pair with it; run seed {seed} "
-                f"on a machine like that one, or a new seed here"
+                f"error: {where} and this machine is {here}: MKL's {mkl_kernels(here)} kernels train other "
+                f"policies than its {mkl_kernels(there)} ones from the same demonstrations, so seed {seed}'s arms "
+                f"run here would not pair with it; run seed {seed} with the kernels it ran with "
+                "(--cpu_isa), or a new seed here"
             )
         if base is None:
             continue
@@ -762,15 +769,18 @@ def main() -> None:
     )
     parser.add_argument(
         "--cpu_isa",
-        choices=["avx2", "native"],
+        choices=["avx2", "avx2_own_mkl", "native"],
         default="avx2",
-        help="avx2 (default): the runs' numeric kernels pinned to AVX2 (and MKL's reproducible AVX2 branch on Intel "
-        "CPUs), so that an AVX-512 machine trains closer policies to an AVX2 one's (compare round 0 before pairing); "
-        "native: the machine's own",
+        help="avx2 (default): the runs' kernels pinned to AVX2 and MKL's reproducible Intel AVX2 branch, on AMD CPUs "
+        "too (a preloaded shim, built with cc): Intel and AMD machines train the same weights; avx2_own_mkl: the pin "
+        "with MKL's own AMD kernels (AMD runs before 2026-12-08); native: the machine's own",
     )
     args = parser.parse_args()
-    if args.cpu_isa == "avx2":
-        os.environ.update(avx2_kernels())  # for the runs this driver starts
+    # For the runs this driver starts.
+    if args.phase in ("select", "noise", "arms", "reread"):
+        os.environ.update(
+            {"avx2": avx2_kernels, "avx2_own_mkl": lambda: AVX2_KERNELS, "native": dict}[args.cpu_isa]()
+        )
     SUMMARIES, RECIPE = RESULTS / args.summaries, args.recipe.resolve()
     TEST_STATES[0] = args.test_states
     SUMMARIES.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,7 @@ import subprocess
 import sys
 import time
 
-from _common import AVX2_KERNELS, RESULTS, ROOT, avx2_kernels, machine_line
+from _common import AVX2_KERNELS, RESULTS, ROOT, avx2_kernels, machine_line, mkl_intel_path
 
 OUT = RESULTS / "kernel_reproducibility.md"
 RECIPE = ROOT / "recipes" / "adroit_table_ensembled.yaml"
@@ -33,6 +33,12 @@ SETTINGS = {
     "avx2 pin (benchmarks)": avx2_kernels(),
     "avx2 pin + MKL_CBWR=AVX2": {**AVX2_KERNELS, "MKL_CBWR": "AVX2"},
     "avx2 pin + MKL_CBWR=COMPATIBLE": {**AVX2_KERNELS, "MKL_CBWR": "COMPATIBLE"},
+    # On an Intel CPU MKL already takes its Intel kernels: the same as "avx2 pin + MKL_CBWR=AVX2".
+    "avx2 pin + MKL_CBWR=AVX2 + MKL's Intel path": {
+        **AVX2_KERNELS,
+        "MKL_CBWR": "AVX2",
+        "LD_PRELOAD": str(mkl_intel_path()),
+    },
 }
 HEADER = """# Do two machines train the same weights? Kernel settings and their digests
 
@@ -40,7 +46,8 @@ Command: `python benchmarks/kernel_reproducibility.py`, one section per CPU (a r
 the Adroit table's ACT trained on one fixed synthetic batch, one torch thread, in a new process per setting; the
 digest of the trained weights and milliseconds per step (median of interleaved runs). Equal digests under "avx2 pin
 (benchmarks)" (what `data_efficiency.py` sets) say that two machines should train the same policies from the same
-data; `data_efficiency.py report` still compares their round 0 before it pairs their runs.
+data; `data_efficiency.py report` still compares their round 0 before it pairs their runs. "Same digest as" names
+the machines above that trained the same digest under any of their settings (as measured when the row was written).
 """
 
 
@@ -88,7 +95,7 @@ def measure(steps: int, repeats: int) -> list[tuple[str, str, float]]:
     """Each setting `repeats` times, the settings interleaved (ABCAB...): the median step time, and one digest (a
     setting whose digest changes between its runs is not deterministic: that is an error)."""
     digests, times = {}, {name: [] for name in SETTINGS}
-    clean = {k: v for k, v in os.environ.items() if k not in {*AVX2_KERNELS, "MKL_CBWR"}}
+    clean = {k: v for k, v in os.environ.items() if k not in {*AVX2_KERNELS, "MKL_CBWR", "LD_PRELOAD"}}
     for _ in range(repeats):
         for name, env in SETTINGS.items():
             proc = subprocess.run(
@@ -131,7 +138,7 @@ def main() -> None:
         "| --- | --- | --- | --- |",
     ]
     for name, digest, ms in rows:
-        same = [k for k, v in others.items() if f"| {name} | {digest} |" in v]
+        same = [k for k, v in others.items() if f"| {digest} |" in v]  # under any of their settings
         table.append(f"| {name} | {digest} | {ms:.1f} | {'; '.join(same) or '-'} |")
     ms = {name: step_ms for name, _, step_ms in rows}
     speed = (

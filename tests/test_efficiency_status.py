@@ -3,6 +3,7 @@ adademo-run leaves (its run state and each round's evaluation summary)."""
 
 import json
 import re
+import sys
 
 import pytest
 from conftest import load_benchmark
@@ -65,27 +66,49 @@ def uniform_summary(seed: int, machine: str, round0: tuple[float, float]) -> str
 
 
 def test_a_seed_runs_only_where_its_arms_pair_with_the_ones_summarised(tmp_path, monkeypatch):
-    """Another vendor's CPU trains other policies: refused before hours go into a base; on this machine's kind the
-    base is built, then its round 0 must equal the one the seed's summaries started from."""
-    here = bench.machine_line()
-    other = "Intel(R) Xeon(R) Processor" if "AMD" in bench.cpu_of(here) else "AMD EPYC"
+    """MKL's AMD kernels train other policies than its Intel ones: refused before hours go into a base; with the
+    kernels the seed ran with, the base is built, then its round 0 must equal the one its summaries started from."""
+    here = bench.machine_line()  # this test process: no kernel settings of the benchmarks
+    assert bench.mkl_kernels("x86_64 AMD EPYC (AVX-512, kernels pinned to AVX2, MKL's Intel path)") == "Intel"
+    assert bench.mkl_kernels("x86_64 Intel(R) Xeon(R) Processor (AVX-512, kernels pinned to AVX2)") == "Intel"
+    assert bench.mkl_kernels("x86_64 AMD EPYC (AVX2)") == "AMD"
+    other = (
+        "AMD EPYC (AVX2)"
+        if bench.mkl_kernels(bench.cpu_of(here)) == "Intel"
+        else "AMD EPYC (AVX2, MKL's Intel path)"
+    )
     summaries = tmp_path / "summaries"
     summaries.mkdir()
     monkeypatch.setattr(bench, "SUMMARIES", summaries)
-    elsewhere = f"date 2026-12-07; machine: x86_64 {other} (AVX-512), 2 CPU cores, Python 3.12.1"
+    elsewhere = f"date 2026-12-07; machine: x86_64 {other}, 2 CPU cores, Python 3.12.1"
     (summaries / "seed1-uniform.json").write_text(uniform_summary(1, elsewhere, (0.5, 0.25)))
     (summaries / "seed2-uniform.json").write_text(uniform_summary(2, here, (0.5, 0.25)))
     with pytest.raises(
-        SystemExit, match=f"seed1-uniform.json ran on x86_64 {re.escape(other)} .*another vendor"
+        SystemExit, match=f"seed1-uniform.json ran on x86_64 {re.escape(other)} .*train other"
     ):
         bench.check_seed_pairs_here(1)
-    bench.check_seed_pairs_here(2)  # this machine's kind: its base may be built, then compared
+    bench.check_seed_pairs_here(2)  # this machine's kernels: its base may be built, then compared
     bench.check_seed_pairs_here(3)  # a new seed
     run_folder(tmp_path / "seed2" / "base", {}, [(0.5, 0.25)])
     bench.check_seed_pairs_here(2, tmp_path / "seed2" / "base")
     run_folder(tmp_path / "rebuilt" / "base", {}, [(0.5, 0.3)])
     with pytest.raises(SystemExit, match=r"round 0 built here \(40.0 %\) differs from the one .* \(37.5 %\)"):
         bench.check_seed_pairs_here(2, tmp_path / "rebuilt" / "base")
+
+
+def test_the_benchmarks_kernels_make_mkl_take_its_intel_path_on_an_amd_cpu(monkeypatch):
+    """The shim answers MKL's question "an Intel CPU?" with yes, and the benchmarks preload it on AMD CPUs only
+    (kernel_reproducibility.md: with it an AMD EPYC trains the Intel Xeon's digest)."""
+    import ctypes
+
+    common = sys.modules["_common"]
+    shim = common.mkl_intel_path()
+    assert ctypes.CDLL(str(shim)).mkl_serv_intel_cpu_true() == 1
+    kernels = common.avx2_kernels()
+    assert kernels["MKL_CBWR"] == "AVX2" and kernels["ATEN_CPU_CAPABILITY"] == "avx2"
+    assert (str(shim) in kernels.get("LD_PRELOAD", "")) == common.amd_cpu()
+    monkeypatch.setenv("LD_PRELOAD", str(shim))
+    assert "MKL's Intel path" in common.machine_line()
 
 
 def test_every_committed_summary_names_the_recipe_that_runs_its_tasks():
