@@ -320,11 +320,11 @@ def check_seed_pairs_here(seed: int, base: Path | None = None) -> None:
             )
         if base is None:
             continue
-        ours = eval_table(base, 0)
         theirs = {task: rates[0] for task, rates in summary["success"].items()}
+        ours = {task: rate for task, rate in eval_table(base, 0).items() if task in theirs}  # not "average"
         if ours != theirs:
             sys.exit(
-                f"error: seed {seed}'s round 0 built here ({100 * sum(ours.values()) / len(ours):.1f} %) differs "
+                f"error: seed {seed}'s round 0 built here ({100 * sum(ours.values()) / len(theirs):.1f} %) differs "
                 f"from the one {where} started from ({100 * sum(theirs.values()) / len(theirs):.1f} %): this "
                 f"machine trains other policies, so its arms would not pair; run seed {seed} on a machine like "
                 f"that one, or a new seed here ({base} is kept)"
