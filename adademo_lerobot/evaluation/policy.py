@@ -88,8 +88,12 @@ def load_policy(path: str | Path, device: str = "cpu") -> LoadedPolicy:
     return LoadedPolicy(policy, pre, post, cfg, path)
 
 
+# Where a checkpoint's features are checked against, unless a caller names another source.
+SUITE_FEATURES = "the suite's observations and actions"
+
+
 def check_policy_matches_features(
-    policy_cfg, features: dict[str, dict], source: str = "the suite's observations and actions"
+    policy_cfg, features: dict[str, dict], source: str = SUITE_FEATURES
 ) -> None:
     """A checkpoint must read and write exactly these dataset features (names and shapes); `source` names where
     they come from in the message."""
@@ -108,9 +112,7 @@ def check_policy_matches_features(
         raise AdaDemoError(f"the checkpoint's features do not match {source}: " + "; ".join(problems))
 
 
-def check_policy(
-    path: str | Path, features: dict[str, dict], source: str = "the suite's observations and actions"
-):
+def check_policy(path: str | Path, features: dict[str, dict], source: str = SUITE_FEATURES):
     """Refuse a checkpoint that is missing or does not match `features` (from `source`), reading only its config
     (the workers load the weights). Returns the config."""
     path = check_checkpoint_folder(path)
