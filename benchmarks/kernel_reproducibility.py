@@ -23,7 +23,7 @@ import subprocess
 import sys
 import time
 
-from _common import AVX2_KERNELS, RESULTS, ROOT, avx2_kernels, machine_line, mkl_intel_path
+from _common import AVX2_KERNELS, RESULTS, ROOT, avx2_kernels, machine_line
 
 OUT = RESULTS / "kernel_reproducibility.md"
 RECIPE = ROOT / "recipes" / "adroit_table_ensembled.yaml"
@@ -33,19 +33,13 @@ SETTINGS = {
     "avx2 pin (benchmarks)": avx2_kernels(),
     "avx2 pin + MKL_CBWR=AVX2": {**AVX2_KERNELS, "MKL_CBWR": "AVX2"},
     "avx2 pin + MKL_CBWR=COMPATIBLE": {**AVX2_KERNELS, "MKL_CBWR": "COMPATIBLE"},
-    # On an Intel CPU MKL already takes its Intel kernels: the same as "avx2 pin + MKL_CBWR=AVX2".
-    "avx2 pin + MKL_CBWR=AVX2 + MKL's Intel path": {
-        **AVX2_KERNELS,
-        "MKL_CBWR": "AVX2",
-        "LD_PRELOAD": str(mkl_intel_path()),
-    },
 }
 HEADER = """# Do two machines train the same weights? Kernel settings and their digests
 
 Command: `python benchmarks/kernel_reproducibility.py`, one section per CPU (a rerun replaces its own). Each row:
 the Adroit table's ACT trained on one fixed synthetic batch, one torch thread, in a new process per setting; the
 digest of the trained weights and milliseconds per step (median of interleaved runs). Equal digests under "avx2 pin
-(benchmarks)" (what `data_efficiency.py` sets) say that two machines should train the same policies from the same
+(benchmarks)" (what `data_efficiency.py` sets: on an AMD CPU also MKL's Intel path, `mkl_intel_path.c`) say that two machines should train the same policies from the same
 data; `data_efficiency.py report` still compares their round 0 before it pairs their runs. "Same digest as" names
 the machines above that trained the same digest under any of their settings (as measured when the row was written).
 """
