@@ -10,9 +10,11 @@ budgeted strategy, at equal demonstrations per round, with the noise of the meas
     python benchmarks/data_efficiency.py report --seeds 0 1 2 [--arms ...]   # the arms to report (and Uniform)
 
 Every run is an `adademo-run` folder under --out (default ~/adademo-bench), so every phase resumes after an
-interruption (rerun the same command) and two drivers can share a machine on disjoint arms (give each
-`--torch_threads 1`). A finished arm is summarised into `benchmarks/results/data_efficiency/seed<S>-<arm>.json`
-(success and demos per task and round, its ledger, its settings, the machine), and `select` and `noise` write
+interruption (rerun the same command). `arms` started twice with the same flags (give each `--torch_threads 1`)
+shares the runs between the two drivers: each takes the next run no other driver holds, so two cores work on one
+table without splitting it by hand. A finished arm is summarised into
+`benchmarks/results/data_efficiency/seed<S>-<arm>.json` (success and demos per task and round, its ledger, its
+settings, the machine), and `arms` does not run an arm with a summary again; `select` and `noise` write
 their tables there too: commit them. `report` reads only that folder, so seeds run in different sessions or on
 different machines combine, and anyone can regenerate the results from the committed figures.
 
@@ -73,6 +75,8 @@ import re
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from _common import AVX2_KERNELS, BIN, RESULTS, ROOT, avx2_kernels, machine_line
@@ -276,18 +280,58 @@ def seed_flags(seed: int) -> list[str]:
 
 
 def finished(run_dir: Path) -> bool:
-    return (run_dir / "eval" / "round-003" / "eval_summary.json").exists()
+    """Every round of the run evaluated: its recipe's rounds (3 where its run state does not say)."""
+    state = run_dir / "run_state.json"
+    rounds = json.loads(state.read_text())["settings"].get("rounds", 3) if state.exists() else 3
+    return (run_dir / "eval" / f"round-{rounds:03d}" / "eval_summary.json").exists()
+
+
+def base_done(base: Path) -> bool:
+    return (base / "eval" / "round-000" / "eval_summary.json").exists()
+
+
+def build_base(base: Path, seed: int) -> None:
+    """The seed's shared round 0 (dataset, policy, evaluation), which every arm starts from a copy of."""
+    adademo_run(base, "--rounds=0", *seed_flags(seed), *BASE_FLAGS)
 
 
 def ensure_base(out: Path, seed: int) -> Path:
-    """The seed's shared round 0, built by whichever driver gets there first (the other waits on the lock)."""
+    """The seed's base, built by whichever driver gets there first (the other waits for it)."""
     base = out / f"seed{seed}" / "base"
-    base.parent.mkdir(parents=True, exist_ok=True)
-    with open(base.parent / "base.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (base / "eval" / "round-000" / "eval_summary.json").exists():
-            adademo_run(base, "--rounds=0", *seed_flags(seed), *BASE_FLAGS)
+    with claimed(base, wait=True):
+        if not base_done(base):
+            build_base(base, seed)
     return base
+
+
+def pending_runs(out: Path, seeds: list[int], arms: list[str]) -> list[Path]:
+    """The runs `arms` still has to do, in the order it does them: arm by arm over the seeds (so the first arms
+    have every seed before the next starts, which is what a report pairs), a seed's shared round 0 (its base)
+    in place of its arms until that is done. An arm with a summary is done, wherever it ran."""
+    pending: list[Path] = []
+    for arm in arms:
+        for seed in seeds:
+            if (SUMMARIES / f"seed{seed}-{arm}.json").exists():
+                continue
+            base = out / f"seed{seed}" / "base"
+            run_dir = out / f"seed{seed}" / arm if base_done(base) else base
+            if not finished(run_dir) and run_dir not in pending:
+                pending.append(run_dir)
+    return pending
+
+
+@contextmanager
+def claimed(run_dir: Path, wait: bool = False) -> Iterator[bool]:
+    """Whether this driver holds `run_dir` (an advisory lock on its sibling `<name>.lock`, which the kernel
+    releases however the driver ends); without `wait`, False at once when another driver holds it."""
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    with open(run_dir.parent / f"{run_dir.name}.lock", "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            yield False
+        else:
+            yield True
 
 
 def cpu_of(machine: str) -> str:
@@ -578,16 +622,38 @@ def phase_status(out: Path) -> None:
 
 
 def phase_arms(out: Path, seeds: list[int], arms: list[str]) -> None:
+    """Every run of `pending_runs`, each by the first driver that takes it: the same command started again beside
+    this one takes the next run this one does not hold, and waits only for a base whose arms it could run."""
     for seed in seeds:
         check_seed_pairs_here(seed)
-        base = ensure_base(out, seed)
-        check_seed_pairs_here(seed, base)
-        for arm in arms:
-            arm_dir = out / f"seed{seed}" / arm
-            flags = [*ALL_ARMS[arm], *seed_flags(seed)]
-            branch_from_base(base, arm_dir, flags)
-            adademo_run(arm_dir, *flags)
-            export_run(out, seed, arm)
+    while pending := pending_runs(out, seeds, arms):
+        for run_dir in pending:
+            with claimed(run_dir) as ours:
+                if ours and run_dir in pending_runs(out, seeds, arms):  # not finished since the list was made
+                    run_one(out, run_dir)
+                    break
+        else:  # every run left is held by another driver
+            bases = [run_dir for run_dir in pending if run_dir.name == "base"]
+            if not bases:
+                print(f"the {len(pending)} runs left are held by another driver", flush=True)
+                return
+            print(f"waiting for another driver's {bases[0]}: its arms come next", flush=True)
+            with claimed(bases[0], wait=True):
+                pass
+
+
+def run_one(out: Path, run_dir: Path) -> None:
+    """A seed's base (its round 0, then checked against the seed's summaries), or one arm from a copy of it."""
+    seed = int(run_dir.parent.name.removeprefix("seed"))
+    base = out / f"seed{seed}" / "base"
+    if run_dir == base:
+        build_base(base, seed)
+    check_seed_pairs_here(seed, base)
+    if run_dir != base:
+        flags = [*ALL_ARMS[run_dir.name], *seed_flags(seed)]
+        branch_from_base(base, run_dir, flags)
+        adademo_run(run_dir, *flags)
+        export_run(out, seed, run_dir.name)
 
 
 # Runs whose data does not depend on the policy (a round-0 base, Uniform): they can be read again with another

@@ -4,6 +4,7 @@ adademo-run leaves (its run state and each round's evaluation summary)."""
 import json
 import re
 import sys
+from contextlib import ExitStack
 
 import pytest
 from conftest import load_benchmark
@@ -11,10 +12,10 @@ from conftest import load_benchmark
 bench = load_benchmark("data_efficiency")
 
 
-def run_folder(root, done, rates_by_round):
+def run_folder(root, done, rates_by_round, settings=None):
     """A run folder's run state and evaluation summaries, in the shape adademo-run writes them."""
     root.mkdir(parents=True)
-    (root / "run_state.json").write_text(json.dumps({"settings": {}, "done": done}))
+    (root / "run_state.json").write_text(json.dumps({"settings": settings or {}, "done": done}))
     for r, rates in enumerate(rates_by_round):
         folder = root / "eval" / f"round-{r:03d}"
         folder.mkdir(parents=True)
@@ -52,6 +53,71 @@ def test_status_lists_each_run_with_its_rounds_and_added_demonstrations(tmp_path
         "| seed1 | uniform | finished | 37.5 -> 50.0 -> 75.0 -> 100.0 | 18 | 1.2 |",
         "| seed2 | adademo | train-1 done | 25.0 | 3 | 0.3 |",  # the copy of a branch in progress is left out
     ]
+
+
+FINISHED = [(0.5, 0.25)] * 4  # rounds 0-3 evaluated
+
+
+def test_arms_runs_arm_by_arm_over_the_seeds_each_seed_s_base_first(tmp_path, monkeypatch):
+    """The first arms get every seed before the next arm starts (what a report pairs); an arm with a summary is
+    done wherever it ran, and a seed with nothing left due gets no base."""
+    summaries = tmp_path / "summaries"
+    summaries.mkdir()
+    monkeypatch.setattr(bench, "SUMMARIES", summaries)
+    out = tmp_path / "out"
+    run_folder(out / "seed1" / "base", {}, FINISHED[:1])
+    run_folder(out / "seed1" / "uniform", {}, FINISHED)
+    run_folder(out / "seed1" / "adademo", {}, FINISHED[:2])  # in its round 1
+    arms = ["uniform", "adademo"]
+    assert bench.pending_runs(out, [1, 2], arms) == [out / "seed2" / "base", out / "seed1" / "adademo"]
+    (summaries / "seed2-uniform.json").write_text("{}")
+    (summaries / "seed2-adademo.json").write_text("{}")
+    assert bench.pending_runs(out, [1, 2], arms) == [out / "seed1" / "adademo"]
+    # A recipe of one round: its arm is finished after round 1, its base after round 0.
+    run_folder(out / "seed3" / "base", {}, FINISHED[:1], settings={"rounds": 0})
+    run_folder(out / "seed3" / "uniform", {}, FINISHED[:2], settings={"rounds": 1})
+    assert bench.pending_runs(out, [3], arms) == [out / "seed3" / "adademo"]
+
+
+def test_drivers_of_one_command_share_its_runs(tmp_path, monkeypatch, capsys):
+    """`arms` started twice takes, in each driver, the next run the other does not hold; a driver with nothing
+    left to take waits only for a base whose arms follow, then ends."""
+    import threading
+
+    monkeypatch.setattr(bench, "SUMMARIES", tmp_path / "summaries")  # none: nothing to pair with
+    out = tmp_path / "out"
+    run_folder(out / "seed1" / "base", {}, FINISHED[:1])
+    run_folder(out / "seed1" / "uniform", {}, FINISHED)
+    arms = ["uniform", "adademo"]
+    with bench.claimed(out / "seed1" / "adademo") as first:
+        with bench.claimed(out / "seed1" / "adademo") as second:  # another driver (its own open file)
+            assert first and not second
+        with bench.claimed(out / "seed1" / "uniform") as other_run:
+            assert other_run
+    with bench.claimed(out / "seed1" / "adademo") as after:  # released when its holder is done with it
+        assert after
+
+    # Another driver holds every run left, seed 2's base among them: this one waits for that base, finds seed 2's
+    # arms due, held as well, and ends without running anything.
+    (out / "seed2").mkdir()
+    held = [out / "seed1" / "adademo", *(out / "seed2" / name for name in ("base", *arms))]
+    with ExitStack() as stack:
+        holds = [stack.enter_context(open(run.parent / f"{run.name}.lock", "w")) for run in held]
+        for hold in holds:
+            bench.fcntl.flock(hold, bench.fcntl.LOCK_EX)
+
+        def other_driver_builds_the_base():
+            run_folder(out / "seed2" / "base", {}, FINISHED[:1])
+            holds[1].close()
+
+        builder = threading.Timer(0.5, other_driver_builds_the_base)
+        builder.start()
+        bench.phase_arms(out, [1, 2], arms)
+        builder.join()
+    printed = capsys.readouterr().out
+    assert f"waiting for another driver's {out / 'seed2' / 'base'}" in printed
+    assert "the 3 runs left are held by another driver" in printed  # seed 1's adademo, seed 2's two arms
+    assert not (out / "seed2" / "uniform").exists()
 
 
 def uniform_summary(seed: int, machine: str, round0: tuple[float, float]) -> str:
