@@ -279,15 +279,20 @@ def seed_flags(seed: int) -> list[str]:
     return flags + ([f"--eval.seed={100 + seed}"] if TEST_STATES[0] == "per_seed" else [])
 
 
+def eval_summary(run_dir: Path, round_index: int) -> Path:
+    """Where adademo-run writes a round's evaluation (its last stage: written, the round is done)."""
+    return run_dir / "eval" / f"round-{round_index:03d}" / "eval_summary.json"
+
+
 def finished(run_dir: Path) -> bool:
     """Every round of the run evaluated: its recipe's rounds (3 where its run state does not say)."""
     state = run_dir / "run_state.json"
     rounds = json.loads(state.read_text())["settings"].get("rounds", 3) if state.exists() else 3
-    return (run_dir / "eval" / f"round-{rounds:03d}" / "eval_summary.json").exists()
+    return eval_summary(run_dir, rounds).exists()
 
 
 def base_done(base: Path) -> bool:
-    return (base / "eval" / "round-000" / "eval_summary.json").exists()
+    return eval_summary(base, 0).exists()
 
 
 def build_base(base: Path, seed: int) -> None:
@@ -396,7 +401,7 @@ def branch_from_base(base: Path, arm_dir: Path, flags: list[str]) -> None:
 
 
 def eval_table(run_dir: Path, round_index: int) -> dict[str, float]:
-    summary = json.loads((run_dir / "eval" / f"round-{round_index:03d}" / "eval_summary.json").read_text())
+    summary = json.loads(eval_summary(run_dir, round_index).read_text())
     return {row["task"]: row["success_rate"] for row in summary["per_task"]}
 
 
